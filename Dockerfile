@@ -1,0 +1,91 @@
+# ilqr-service container image.
+#
+#   docker build -t ilqr-service .
+#   docker run --rm -p 8080:8080 ilqr-service
+#
+# Four stages:
+#   chef     - Rust toolchain + cargo-chef, shared by the next two stages.
+#   planner  - reduces the workspace to a "recipe" (manifests + lockfile only).
+#   builder  - compiles the dependencies from the recipe (cached layer), then
+#              the workspace's own code.
+#   runtime  - distroless image holding only the binary.
+#
+# Why cargo-chef: Docker caches a layer until one of its inputs changes. A
+# plain `COPY . . && cargo build` recompiles every crate from crates.io on any
+# source edit. The recipe only changes when Cargo.toml/Cargo.lock change, so the
+# expensive `cargo chef cook` layer is reused across ordinary code changes and
+# only the workspace crates are rebuilt.
+
+# ---------------------------------------------------------------------------
+# Toolchain pinned to the same minor version the project is developed with, on
+# Debian 12 (bookworm) so the glibc we link against matches the runtime image
+# (distroless cc-debian12). Mixing Debian releases risks "GLIBC_x.y not found".
+FROM rust:1.95-slim-bookworm AS chef
+# Pinned and --locked so the planner/cook logic (and hence the cache keys) do
+# not change under us between builds.
+RUN cargo install cargo-chef --locked --version 0.1.78
+WORKDIR /app
+
+# ---------------------------------------------------------------------------
+FROM chef AS planner
+# .dockerignore is an allow-list, so this copies only what the build needs.
+COPY . .
+RUN cargo chef prepare --recipe-path recipe.json
+
+# ---------------------------------------------------------------------------
+FROM chef AS builder
+COPY --from=planner /app/recipe.json recipe.json
+# Build only the dependency graph. Same profile (--release), lockfile policy
+# (--locked) and target selection as the real build below; if they differed,
+# cargo would consider the cooked artefacts stale and rebuild everything.
+RUN cargo chef cook --release --locked --recipe-path recipe.json --bin ilqr-service
+# Now the real sources; only this layer and below are invalidated by code edits.
+COPY . .
+RUN cargo build --release --locked --bin ilqr-service
+
+# ---------------------------------------------------------------------------
+# Runtime: distroless "cc" = glibc + libgcc_s + CA certs, no shell, no package
+# manager, so the attack surface is just our binary. The :nonroot variant
+# already defaults to uid/gid 65532; it is restated numerically below so that
+# Kubernetes' runAsNonRoot can verify it without resolving a user name.
+FROM gcr.io/distroless/cc-debian12:nonroot AS runtime
+
+# Build-time metadata; override with --build-arg (e.g. from CI: the git SHA).
+ARG VERSION=0.1.0
+ARG REVISION=unknown
+LABEL org.opencontainers.image.title="ilqr-service" \
+      org.opencontainers.image.description="Trajectory optimisation with iLQR, served over HTTP" \
+      org.opencontainers.image.version="${VERSION}" \
+      org.opencontainers.image.revision="${REVISION}" \
+      org.opencontainers.image.licenses="MIT OR Apache-2.0" \
+      org.opencontainers.image.source="https://example.invalid/ilqr-service" \
+      org.opencontainers.image.base.name="gcr.io/distroless/cc-debian12:nonroot"
+
+# The binary is owned by root and not writable by the runtime user, so a
+# compromised process cannot replace it. The release profile keeps line
+# tables (debug = "line-tables-only"), so panics still give usable backtraces.
+COPY --from=builder /app/target/release/ilqr-service /usr/local/bin/ilqr-service
+
+# Bind on all interfaces inside the container (loopback would be unreachable
+# through the published port). RUST_LOG feeds tracing-subscriber's EnvFilter.
+ENV ILQR_BIND=0.0.0.0:8080 \
+    RUST_LOG=info
+
+EXPOSE 8080
+
+USER 65532:65532
+
+# There is no shell or curl in distroless, so the health check is the binary
+# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1 on the
+# port taken from ILQR_BIND and exits 0/1. Exec form, because shell form would
+# need /bin/sh. (Kubernetes ignores HEALTHCHECK and uses the probes in
+# deploy/k8s/deployment.yaml instead; this is for docker / compose.)
+HEALTHCHECK --interval=10s --timeout=3s --start-period=5s --retries=3 \
+    CMD ["/usr/local/bin/ilqr-service", "healthcheck"]
+
+# Exec form: the service runs as PID 1 and receives SIGTERM directly from
+# `docker stop` / the kubelet, which triggers its graceful drain. A shell
+# wrapper would swallow the signal. `docker run ilqr-service solve ...` etc.
+# replaces only CMD, reusing the same entrypoint.
+ENTRYPOINT ["/usr/local/bin/ilqr-service"]
+CMD ["serve"]

@@ -1,0 +1,67 @@
+//! Iterative LQR (iLQR) trajectory optimisation on fixed-size nalgebra matrices.
+//!
+//! The crate is the pure, synchronous solver behind `ilqr-service`: no async
+//! runtime, no web types, no serialisation. Everything on the hot path is a
+//! const-generic `SMatrix`/`SVector`, and a [`Solver`] owns every buffer it
+//! needs, so the iteration loop never touches the heap.
+//!
+//! # Layout
+//!
+//! * [`dynamics`]: the [`ContinuousDynamics`] and [`DiscreteDynamics`] traits
+//!   and the explicit [`Euler`] integrator (eq. 9 of the seed paper) that turns
+//!   one into the other.
+//! * [`quadrotor`]: the planar quadrotor of eqs. 4–6 with analytic Jacobians
+//!   (eq. 11).
+//! * [`cost`]: the [`Cost`] trait the solver minimises, its quadratic model
+//!   ([`StageExpansion`], [`TerminalExpansion`]) and the terms of eqs. 13–15
+//!   ([`StateTracking`], [`ControlEffort`], [`ExpObstacle`], [`TerminalTracking`]),
+//!   summed by [`Objective`].
+//! * [`solver`]: the iLQR driver loop (backward pass eqs. 31–48, forward pass
+//!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation, its
+//!   [`Options`], the [`Status`] that says how a solve ended and the per-iteration
+//!   [`TraceRow`].
+//!
+//! The algorithm in [`solver`] knows nothing about quadrotors: it sees a
+//! [`DiscreteDynamics`] and a [`Cost`]. New models, integrators and cost terms
+//! are new trait implementations.
+//!
+//! # Example
+//!
+//! ```
+//! use ilqr::{Euler, Objective, Options, Problem, Quadrotor2D, Solver, Status};
+//! use ilqr::{ControlEffort, StateTracking, TerminalTracking};
+//! use nalgebra::{SVector, Vector2};
+//! use std::sync::atomic::AtomicBool;
+//!
+//! let model = Quadrotor2D { mass: 1.0, inertia: 1.0, arm_length: 1.0, gravity: 9.81 };
+//! let goal = SVector::<f64, 6>::from([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+//! let cost = Objective::new()
+//!     .stage(StateTracking { goal, weights: SVector::repeat(1.0) })
+//!     .stage(ControlEffort { weights: Vector2::repeat(0.1) })
+//!     .terminal(TerminalTracking { goal, weights: SVector::repeat(100.0) });
+//! let problem = Problem { dynamics: Euler { model, dt: 0.05 }, cost, x0: SVector::zeros(), horizon: 40 };
+//! let hover = vec![Vector2::repeat(9.81 / 2.0); 40];
+//!
+//! let mut solver = Solver::new(40);
+//! let summary = solver.solve(&problem, &hover, &Options::default(), &AtomicBool::new(false)).unwrap();
+//! assert_eq!(summary.status, Status::Converged);
+//! assert!((solver.states()[40][1] - 1.0).abs() < 0.05);
+//! ```
+#![warn(missing_docs)]
+
+pub mod cost;
+pub mod dynamics;
+mod kernels;
+pub mod quadrotor;
+pub mod solver;
+
+pub use cost::{
+    ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
+    TerminalCost, TerminalExpansion, TerminalTracking,
+};
+pub use dynamics::{ContinuousDynamics, DiscreteDynamics, Euler};
+pub use quadrotor::Quadrotor2D;
+pub use solver::{
+    Options, Problem, RiccatiStep, SolveError, Solver, Status, Summary, TraceRow, Value,
+    riccati_step,
+};

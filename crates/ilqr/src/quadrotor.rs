@@ -1,0 +1,83 @@
+//! The planar (2-D) quadrotor of the seed paper, eqs. 4–8.
+//!
+//! State `[x, y, θ, ẋ, ẏ, θ̇]` (m, m, rad, m/s, m/s, rad/s); controls
+//! `[u1, u2]`, the two rotor thrusts (N). The equations of motion are
+//!
+//! ```text
+//! m·ẍ = −(u1 + u2)·sin θ
+//! m·ÿ =  (u1 + u2)·cos θ − m·g
+//! I·θ̈ =  r·(u1 − u2)
+//! ```
+//!
+//! The paper's eq. 8 prints the angular term as `1/t`; eq. 6 makes it `r/I`,
+//! which is what is implemented. Thrusts are not bounded here: control limits
+//! are a constraint for a later solver, not part of the model.
+
+use nalgebra::{SMatrix, SVector};
+
+use crate::dynamics::ContinuousDynamics;
+
+/// Physical parameters of the planar quadrotor. All must be positive and
+/// finite; `ilqr-service` validates that before building one.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Quadrotor2D {
+    /// Mass `m` in kg.
+    pub mass: f64,
+    /// Moment of inertia `I` about the body axis, kg·m².
+    pub inertia: f64,
+    /// Distance `r` from the centre to each rotor, m.
+    pub arm_length: f64,
+    /// Gravitational acceleration `g`, m/s².
+    pub gravity: f64,
+}
+
+impl Quadrotor2D {
+    /// The thrust per rotor that holds the quadrotor level and still: `m·g/2`.
+    pub fn hover_thrust(&self) -> f64 {
+        self.mass * self.gravity / 2.0
+    }
+}
+
+impl ContinuousDynamics<6, 2> for Quadrotor2D {
+    #[inline]
+    fn derivative(&self, x: &SVector<f64, 6>, u: &SVector<f64, 2>) -> SVector<f64, 6> {
+        let (sin, cos) = x[2].sin_cos();
+        let thrust = u[0] + u[1];
+        SVector::<f64, 6>::new(
+            x[3],
+            x[4],
+            x[5],
+            -thrust * sin / self.mass,
+            thrust * cos / self.mass - self.gravity,
+            self.arm_length * (u[0] - u[1]) / self.inertia,
+        )
+    }
+
+    #[inline]
+    fn jacobians(
+        &self,
+        x: &SVector<f64, 6>,
+        u: &SVector<f64, 2>,
+    ) -> (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>) {
+        let (sin, cos) = x[2].sin_cos();
+        let thrust = u[0] + u[1];
+        let m = self.mass;
+        let mut f_x = SMatrix::<f64, 6, 6>::zeros();
+        f_x[(0, 3)] = 1.0;
+        f_x[(1, 4)] = 1.0;
+        f_x[(2, 5)] = 1.0;
+        f_x[(3, 2)] = -thrust * cos / m;
+        f_x[(4, 2)] = -thrust * sin / m;
+        let torque = self.arm_length / self.inertia;
+        #[rustfmt::skip]
+        let f_u = SMatrix::<f64, 6, 2>::new(
+            0.0,       0.0,
+            0.0,       0.0,
+            0.0,       0.0,
+            -sin / m,  -sin / m,
+            cos / m,   cos / m,
+            torque,    -torque,
+        );
+        (f_x, f_u)
+    }
+}

@@ -1,0 +1,617 @@
+//! The iLQR driver loop.
+//!
+//! One iteration, following steps 1–7 of the seed paper:
+//!
+//! 1. linearise the dynamics (`A_k`, `B_k`, eq. 11) and expand the cost
+//!    (eqs. 18–23) along the nominal trajectory `(x̄, ū)`;
+//! 2. backward pass (eqs. 31–48): from `V_x = ∂l_f/∂x`, `V_xx = ∂²l_f/∂x²` at
+//!    `x_N`, form `Q_x, Q_u, Q_xx, Q_uu, Q_ux` at each knot and the gains
+//!    `d_k = −Q_uu⁻¹ Q_u`, `K_k = −Q_uu⁻¹ Q_ux`;
+//! 3. forward pass (eqs. 49–51): roll out `u_k = ū_k + α d_k + K_k (x_k − x̄_k)`
+//!    through the nonlinear dynamics for a decreasing sequence of step sizes α.
+//!
+//! Robustness beyond the paper, as mature solvers do it (Tassa et al. 2012):
+//!
+//! * **Levenberg–Marquardt regularisation**: `Q_uu + μI` is factorised instead
+//!   of `Q_uu`. μ is raised when that is not positive definite or when the
+//!   line search fails, and lowered after a success, on Tassa's quadratic
+//!   schedule. The value-function update uses the consistent ("improved")
+//!   formulas of eqs. 46–48, so regularisation changes the step, not the model.
+//! * **Acceptance by expected reduction**: a step is taken when the actual
+//!   reduction is at least `acceptance` times the reduction the quadratic model
+//!   predicts, `ΔV(α) = −(α Σ dᵀQ_u + ½ α² Σ dᵀQ_uu d)`.
+//! * **Non-finite rollouts are rejected** as if their cost were +∞.
+//!
+//! The driver owns termination: it checks cancellation and the time budget
+//! every iteration and records one [`TraceRow`] per iteration. How the solve
+//! ended is a [`Status`]; only malformed input is a [`SolveError`].
+//!
+//! Every buffer lives in [`Solver`] and is sized before the loop starts, so
+//! the loop itself does not allocate (checked by `tests/allocation.rs`).
+
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::time::{Duration, Instant};
+
+use nalgebra::{SMatrix, SVector};
+
+use crate::cost::{Cost, StageExpansion, TerminalExpansion};
+use crate::dynamics::DiscreteDynamics;
+use crate::kernels::{mul, tr_mul};
+
+/// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
+/// `dynamics`, starting from `x0`.
+pub struct Problem<D, C, const NX: usize> {
+    /// The discrete dynamics (model + integrator).
+    pub dynamics: D,
+    /// The cost to minimise.
+    pub cost: C,
+    /// The initial state.
+    pub x0: SVector<f64, NX>,
+    /// The number of control steps `N`; the trajectory has `N + 1` states.
+    pub horizon: usize,
+}
+
+/// Solver settings. The defaults follow Tassa's iLQG reference code except
+/// where noted.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Options {
+    /// Upper bound on iterations (one backward and one forward pass each).
+    pub max_iterations: usize,
+    /// Convergence threshold, relative to the current cost: the solve has
+    /// converged when a full step (α = 1) reduced the cost by less than
+    /// `tolerance·|J|`, or when the model predicts a full step would.
+    pub tolerance: f64,
+    /// Wall-clock budget; `None` for no limit. Checked once per iteration, so
+    /// a solve can overrun it by about one iteration.
+    pub time_limit: Option<Duration>,
+    /// Initial regularisation μ (iLQG.m starts at 1: the first steps from a
+    /// poor initial guess are damped, which here saves iterations).
+    pub mu_init: f64,
+    /// Smallest non-zero μ; below it μ snaps to 0.
+    pub mu_min: f64,
+    /// Largest μ; needing more ends the solve with [`Status::NoProgress`].
+    pub mu_max: f64,
+    /// Base factor of the μ schedule (Tassa's Δ₀).
+    pub mu_factor: f64,
+    /// Step sizes tried by the line search, in order.
+    pub step_sizes: Vec<f64>,
+    /// Accept a step when actual/expected reduction exceeds this.
+    pub acceptance: f64,
+}
+
+impl Default for Options {
+    fn default() -> Self {
+        Self {
+            max_iterations: 100,
+            tolerance: 1e-9,
+            time_limit: None,
+            mu_init: 1.0,
+            mu_min: 1e-6,
+            mu_max: 1e10,
+            mu_factor: 1.6,
+            // 10^linspace(0, −3, 11), as in iLQG.m.
+            step_sizes: (0..11).map(|i| 10f64.powf(-0.3 * f64::from(i))).collect(),
+            acceptance: 1e-4,
+        }
+    }
+}
+
+/// How a solve ended. None of these is an error: every status comes with the
+/// best trajectory found so far.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
+pub enum Status {
+    /// The relative cost change fell below the tolerance.
+    Converged,
+    /// `max_iterations` were spent first.
+    MaxIterations,
+    /// The time budget ran out first.
+    TimeLimit,
+    /// The cancellation flag was set.
+    Cancelled,
+    /// Regularisation passed `mu_max`: neither the backward pass nor the line
+    /// search could make progress.
+    NoProgress,
+}
+
+/// One iteration of the solve, as recorded in the trace.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TraceRow {
+    /// 1-based iteration number.
+    pub iteration: usize,
+    /// Cost after this iteration (unchanged when the step was rejected).
+    pub cost: f64,
+    /// Reduction predicted by the quadratic model for the step taken (or for
+    /// the last step size tried, when none was accepted).
+    pub expected_reduction: f64,
+    /// Actual reduction (0 when no step was accepted).
+    pub actual_reduction: f64,
+    /// Accepted step size α, or 0 when the line search failed.
+    pub step_size: f64,
+    /// Regularisation μ used by this iteration's backward pass.
+    pub regularization: f64,
+    /// Feedforward size: mean over knots of `max_i |d_i| / (|ū_i| + 1)`.
+    pub feedforward_norm: f64,
+    /// Time since the solve started.
+    pub elapsed: Duration,
+}
+
+/// What a solve reports besides the trajectory, which stays in the [`Solver`].
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Summary {
+    /// How the solve ended.
+    pub status: Status,
+    /// Final cost `J`.
+    pub cost: f64,
+    /// Cost of the initial rollout.
+    pub initial_cost: f64,
+    /// Iterations performed (forward passes attempted).
+    pub iterations: usize,
+    /// Wall-clock time of the whole solve.
+    pub solve_time: Duration,
+}
+
+/// Input the solver cannot work with.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SolveError {
+    /// `horizon` was 0.
+    EmptyHorizon,
+    /// The initial control sequence does not have `horizon` entries.
+    ControlsLength {
+        /// `horizon`.
+        expected: usize,
+        /// What was given.
+        got: usize,
+    },
+    /// The rollout of the initial controls produced a NaN or infinite state or
+    /// cost, so there is nothing to improve on.
+    InitialRolloutNotFinite {
+        /// The first knot at which it went wrong.
+        knot: usize,
+    },
+}
+
+impl std::fmt::Display for SolveError {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        match self {
+            Self::EmptyHorizon => write!(f, "the horizon must have at least one step"),
+            Self::ControlsLength { expected, got } => {
+                write!(f, "expected {expected} initial controls, got {got}")
+            }
+            Self::InitialRolloutNotFinite { knot } => write!(
+                f,
+                "the initial controls drive the state or cost to NaN/infinity at step {knot}"
+            ),
+        }
+    }
+}
+
+impl std::error::Error for SolveError {}
+
+/// An iLQR solver with its workspace. Reusing one across solves of the same
+/// horizon allocates nothing at all.
+#[allow(non_snake_case)]
+pub struct Solver<const NX: usize, const NU: usize> {
+    /// Nominal states `x̄_0..x̄_N`.
+    xs: Vec<SVector<f64, NX>>,
+    /// Nominal controls `ū_0..ū_{N−1}`.
+    us: Vec<SVector<f64, NU>>,
+    /// Candidate trajectory of the line search.
+    xs_new: Vec<SVector<f64, NX>>,
+    us_new: Vec<SVector<f64, NU>>,
+    A: Vec<SMatrix<f64, NX, NX>>,
+    B: Vec<SMatrix<f64, NX, NU>>,
+    stage: Vec<StageExpansion<NX, NU>>,
+    terminal: TerminalExpansion<NX>,
+    /// Feedback gains `K_k`.
+    K: Vec<SMatrix<f64, NU, NX>>,
+    /// Feedforward terms `d_k`.
+    d: Vec<SVector<f64, NU>>,
+    trace: Vec<TraceRow>,
+}
+
+/// Outcome of one backward pass.
+struct Backward {
+    /// `Σ dᵀQ_u` and `Σ ½ dᵀQ_uu d`: ΔV(α) = −(α·dv1 + α²·dv2).
+    dv1: f64,
+    dv2: f64,
+}
+
+impl<const NX: usize, const NU: usize> Solver<NX, NU> {
+    /// A solver with buffers for `horizon` steps. Solving a longer horizon
+    /// later grows them (once, before the loop).
+    pub fn new(horizon: usize) -> Self {
+        let mut s = Self {
+            xs: Vec::new(),
+            us: Vec::new(),
+            xs_new: Vec::new(),
+            us_new: Vec::new(),
+            A: Vec::new(),
+            B: Vec::new(),
+            stage: Vec::new(),
+            terminal: TerminalExpansion::zeros(),
+            K: Vec::new(),
+            d: Vec::new(),
+            trace: Vec::new(),
+        };
+        s.resize(horizon);
+        s
+    }
+
+    fn resize(&mut self, n: usize) {
+        self.xs.resize(n + 1, SVector::zeros());
+        self.xs_new.resize(n + 1, SVector::zeros());
+        self.us.resize(n, SVector::zeros());
+        self.us_new.resize(n, SVector::zeros());
+        self.A.resize(n, SMatrix::zeros());
+        self.B.resize(n, SMatrix::zeros());
+        self.stage.resize(n, StageExpansion::zeros());
+        self.K.resize(n, SMatrix::zeros());
+        self.d.resize(n, SVector::zeros());
+    }
+
+    /// States `x_0..x_N` of the last solve.
+    pub fn states(&self) -> &[SVector<f64, NX>] {
+        &self.xs
+    }
+
+    /// Controls `u_0..u_{N−1}` of the last solve.
+    pub fn controls(&self) -> &[SVector<f64, NU>] {
+        &self.us
+    }
+
+    /// Feedback gains `K_k` of the last solve: the closed-loop policy is
+    /// `u_k = ū_k + K_k (x_k − x̄_k)`. Unless the status is
+    /// [`Status::NoProgress`], they come from a backward pass about the
+    /// returned trajectory itself.
+    pub fn feedback(&self) -> &[SMatrix<f64, NU, NX>] {
+        &self.K
+    }
+
+    /// Feedforward terms `d_k` of the last backward pass: the step the solver
+    /// would take next (near zero at convergence).
+    pub fn feedforward(&self) -> &[SVector<f64, NU>] {
+        &self.d
+    }
+
+    /// One row per iteration of the last solve.
+    pub fn trace(&self) -> &[TraceRow] {
+        &self.trace
+    }
+
+    /// Solve `problem` from the initial control sequence `u_init`
+    /// (`problem.horizon` entries). `cancel` is polled once per iteration;
+    /// setting it ends the solve with [`Status::Cancelled`].
+    pub fn solve<D, C>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        u_init: &[SVector<f64, NU>],
+        options: &Options,
+        cancel: &AtomicBool,
+    ) -> Result<Summary, SolveError>
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        let start = Instant::now();
+        let n = problem.horizon;
+        if n == 0 {
+            return Err(SolveError::EmptyHorizon);
+        }
+        if u_init.len() != n {
+            return Err(SolveError::ControlsLength {
+                expected: n,
+                got: u_init.len(),
+            });
+        }
+
+        // Everything that may allocate happens here, before the loop.
+        self.resize(n);
+        self.trace.clear();
+        self.trace.reserve(options.max_iterations);
+        self.us[..n].copy_from_slice(u_init);
+        self.K[..n].fill(SMatrix::zeros());
+        self.d[..n].fill(SVector::zeros());
+
+        self.xs[0] = problem.x0;
+        let mut cost = rollout(problem, &mut self.xs, &self.us);
+        if !cost.is_finite() {
+            let knot = self.xs.iter().position(|x| !all_finite(x)).unwrap_or(n);
+            return Err(SolveError::InitialRolloutNotFinite { knot });
+        }
+        let initial_cost = cost;
+
+        let mut mu = options.mu_init;
+        let mut delta = 1.0;
+        let mut iterations = 0;
+        let mut converged = false;
+
+        let status = 'outer: loop {
+            // 1. Derivatives along the nominal trajectory. They change only
+            //    when a step is accepted, but every accepted step ends an
+            //    iteration, so each iteration starts with fresh ones.
+            self.linearize(problem);
+
+            // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
+            let bw = loop {
+                match self.backward(mu) {
+                    Some(bw) => break bw,
+                    None => {
+                        increase(&mut mu, &mut delta, options);
+                        if mu > options.mu_max {
+                            break 'outer Status::NoProgress;
+                        }
+                    }
+                }
+            };
+
+            // The gains now describe the current trajectory, so every exit
+            // from here on returns a consistent policy.
+            if converged {
+                break Status::Converged;
+            }
+            if cancel.load(Ordering::Relaxed) {
+                break Status::Cancelled;
+            }
+            if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
+                break Status::TimeLimit;
+            }
+            if iterations >= options.max_iterations {
+                break Status::MaxIterations;
+            }
+            // The model says even a full step would gain almost nothing.
+            if -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs() && mu <= options.mu_min {
+                break Status::Converged;
+            }
+            iterations += 1;
+
+            // 3. Forward pass with a line search on α.
+            let ff_norm = self.feedforward_norm(n);
+            let mut row = TraceRow {
+                iteration: iterations,
+                cost,
+                expected_reduction: 0.0,
+                actual_reduction: 0.0,
+                step_size: 0.0,
+                regularization: mu,
+                feedforward_norm: ff_norm,
+                elapsed: Duration::ZERO,
+            };
+            let mut accepted = false;
+            for &alpha in &options.step_sizes {
+                let expected = -(alpha * bw.dv1 + alpha * alpha * bw.dv2);
+                let new_cost = self.forward(problem, alpha);
+                row.expected_reduction = expected;
+                if !new_cost.is_finite() {
+                    continue;
+                }
+                let actual = cost - new_cost;
+                let ok = if expected > 0.0 {
+                    actual / expected > options.acceptance
+                } else {
+                    actual > 0.0
+                };
+                if ok {
+                    std::mem::swap(&mut self.xs, &mut self.xs_new);
+                    std::mem::swap(&mut self.us, &mut self.us_new);
+                    row.actual_reduction = actual;
+                    row.step_size = alpha;
+                    row.cost = new_cost;
+                    converged = alpha == 1.0 && actual <= options.tolerance * cost.abs();
+                    cost = new_cost;
+                    accepted = true;
+                    break;
+                }
+            }
+            if accepted {
+                decrease(&mut mu, &mut delta, options);
+            } else {
+                increase(&mut mu, &mut delta, options);
+            }
+            row.elapsed = start.elapsed();
+            self.trace.push(row);
+            if mu > options.mu_max {
+                break Status::NoProgress;
+            }
+        };
+
+        Ok(Summary {
+            status,
+            cost,
+            initial_cost,
+            iterations,
+            solve_time: start.elapsed(),
+        })
+    }
+
+    /// Fill `A`, `B` and the cost expansions along `(xs, us)`.
+    fn linearize<D, C>(&mut self, problem: &Problem<D, C, NX>)
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        let n = problem.horizon;
+        for k in 0..n {
+            let (x, u) = (&self.xs[k], &self.us[k]);
+            (self.A[k], self.B[k]) = problem.dynamics.linearize(x, u);
+            let e = &mut self.stage[k];
+            *e = StageExpansion::zeros();
+            problem.cost.stage_expand(k, x, u, e);
+        }
+        self.terminal = TerminalExpansion::zeros();
+        problem
+            .cost
+            .terminal_expand(&self.xs[n], &mut self.terminal);
+    }
+
+    /// Eqs. 31–48 with `Q_uu + μI`, knot by knot from `N − 1` down to 0.
+    /// Returns `None` when `Q_uu + μI` is not positive definite at some knot.
+    #[allow(non_snake_case)]
+    fn backward(&mut self, mu: f64) -> Option<Backward> {
+        let n = self.us.len();
+        let mut value = Value {
+            V_x: self.terminal.l_x,
+            V_xx: self.terminal.l_xx,
+        };
+        let (mut dv1, mut dv2) = (0.0, 0.0);
+        for k in (0..n).rev() {
+            let step = riccati_step(&self.A[k], &self.B[k], &self.stage[k], &value, mu)?;
+            dv1 += step.dv1;
+            dv2 += step.dv2;
+            self.K[k] = step.K;
+            self.d[k] = step.d;
+            value = step.value;
+        }
+        Some(Backward { dv1, dv2 })
+    }
+
+    /// Roll out `u = ū + α d + K (x − x̄)` into `xs_new`/`us_new`; returns the
+    /// cost, or +∞ as soon as a state or the cost stops being finite.
+    fn forward<D, C>(&mut self, problem: &Problem<D, C, NX>, alpha: f64) -> f64
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        let n = problem.horizon;
+        self.xs_new[0] = problem.x0;
+        let mut cost = 0.0;
+        for k in 0..n {
+            let x = self.xs_new[k];
+            let u = self.us[k] + self.d[k] * alpha + self.K[k] * (x - self.xs[k]);
+            self.us_new[k] = u;
+            cost += problem.cost.stage(k, &x, &u);
+            let next = problem.dynamics.step(&x, &u);
+            if !all_finite(&next) || !cost.is_finite() {
+                return f64::INFINITY;
+            }
+            self.xs_new[k + 1] = next;
+        }
+        cost + problem.cost.terminal(&self.xs_new[n])
+    }
+
+    fn feedforward_norm(&self, n: usize) -> f64 {
+        let total: f64 = (0..n)
+            .map(|k| {
+                (0..NU)
+                    .map(|i| self.d[k][i].abs() / (self.us[k][i].abs() + 1.0))
+                    .fold(0.0, f64::max)
+            })
+            .sum();
+        total / n as f64
+    }
+}
+
+/// The quadratic model `V(x̄ + δx) ≈ V + V_xᵀδx + ½ δxᵀV_xx δx` of the cost-to-go
+/// at one knot (eqs. 27–28).
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Value<const NX: usize> {
+    /// Gradient `V_x` (the paper's `s`).
+    pub V_x: SVector<f64, NX>,
+    /// Hessian `V_xx` (the paper's `S`).
+    pub V_xx: SMatrix<f64, NX, NX>,
+}
+
+/// What one knot of the backward pass produces.
+#[allow(non_snake_case)]
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RiccatiStep<const NX: usize, const NU: usize> {
+    /// Feedback gain `K = −(Q_uu + μI)⁻¹ Q_ux` (eq. 44).
+    pub K: SMatrix<f64, NU, NX>,
+    /// Feedforward `d = −(Q_uu + μI)⁻¹ Q_u` (eq. 43).
+    pub d: SVector<f64, NU>,
+    /// Cost-to-go at this knot (eqs. 47–48).
+    pub value: Value<NX>,
+    /// `dᵀQ_u`, the linear part of the expected reduction (eq. 46).
+    pub dv1: f64,
+    /// `½ dᵀQ_uu d`, its quadratic part.
+    pub dv2: f64,
+}
+
+/// One knot of the backward pass: eqs. 31–35 form `Q` from the stage
+/// expansion `l`, the linearisation `(A, B)` and the next knot's value
+/// function; eqs. 43–48 give the gains and this knot's value function.
+///
+/// `Q_uu` is regularised to `Q_uu + μI` before it is factorised; the value
+/// update uses the unregularised `Q_uu` in the form of eqs. 47–48, which stays
+/// consistent for any `K` and `d`. Returns `None` when `Q_uu + μI` is not
+/// positive definite (or the gains are not finite).
+#[allow(non_snake_case)]
+#[inline]
+pub fn riccati_step<const NX: usize, const NU: usize>(
+    A: &SMatrix<f64, NX, NX>,
+    B: &SMatrix<f64, NX, NU>,
+    l: &StageExpansion<NX, NU>,
+    next: &Value<NX>,
+    mu: f64,
+) -> Option<RiccatiStep<NX, NU>> {
+    let Value { V_x, V_xx } = next;
+    let V_xx_A = mul(V_xx, A);
+    let V_xx_B = mul(V_xx, B);
+    let Q_x = l.l_x + tr_mul(A, V_x);
+    let Q_u = l.l_u + tr_mul(B, V_x);
+    let Q_xx = l.l_xx + tr_mul(A, &V_xx_A);
+    let Q_uu = l.l_uu + tr_mul(B, &V_xx_B);
+    let Q_ux = l.l_ux + tr_mul(B, &V_xx_A);
+
+    let mut Q_uu_reg = Q_uu;
+    for i in 0..NU {
+        Q_uu_reg[(i, i)] += mu;
+    }
+    let chol = Q_uu_reg.cholesky()?;
+    let d = -chol.solve(&Q_u);
+    let K = -chol.solve(&Q_ux);
+    if !all_finite(&d) || !all_finite(&K) {
+        return None;
+    }
+
+    let Q_uu_d = mul(&Q_uu, &d);
+    let V_x = Q_x + tr_mul(&K, &(Q_uu_d + Q_u)) + tr_mul(&Q_ux, &d);
+    let K_Q_ux = tr_mul(&K, &Q_ux);
+    let V_xx = Q_xx + tr_mul(&K, &mul(&Q_uu, &K)) + K_Q_ux + K_Q_ux.transpose();
+    Some(RiccatiStep {
+        K,
+        d,
+        value: Value {
+            V_x,
+            V_xx: (V_xx + V_xx.transpose()) * 0.5,
+        },
+        dv1: d.dot(&Q_u),
+        dv2: 0.5 * d.dot(&Q_uu_d),
+    })
+}
+
+/// Roll `us` out from `xs[0]` into `xs`; returns the total cost (NaN or ∞
+/// when the rollout diverges).
+fn rollout<D, C, const NX: usize, const NU: usize>(
+    problem: &Problem<D, C, NX>,
+    xs: &mut [SVector<f64, NX>],
+    us: &[SVector<f64, NU>],
+) -> f64
+where
+    D: DiscreteDynamics<NX, NU>,
+    C: Cost<NX, NU>,
+{
+    let mut cost = 0.0;
+    for (k, u) in us.iter().enumerate() {
+        cost += problem.cost.stage(k, &xs[k], u);
+        xs[k + 1] = problem.dynamics.step(&xs[k], u);
+    }
+    cost + problem.cost.terminal(&xs[us.len()])
+}
+
+fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
+    m.iter().all(|v| v.is_finite())
+}
+
+/// Tassa's schedule: grow the multiplier Δ, then μ ← max(μ_min, μ·Δ).
+fn increase(mu: &mut f64, delta: &mut f64, o: &Options) {
+    *delta = (*delta * o.mu_factor).max(o.mu_factor);
+    *mu = (*mu * *delta).max(o.mu_min);
+}
+
+/// Tassa's schedule: shrink Δ, then μ ← μ·Δ, snapping to 0 below μ_min.
+fn decrease(mu: &mut f64, delta: &mut f64, o: &Options) {
+    *delta = (*delta / o.mu_factor).min(1.0 / o.mu_factor);
+    let next = *mu * *delta;
+    *mu = if next > o.mu_min { next } else { 0.0 };
+}

@@ -1,0 +1,169 @@
+//! The command line: `serve` (the default), `solve`, `openapi` and
+//! `healthcheck`. Each subcommand is a few lines over the library.
+
+use std::io::{Read, Write};
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::sync::atomic::AtomicBool;
+
+use clap::{Parser, Subcommand};
+
+use crate::problem::{Limits, ParseError, ProblemSpec, parse};
+use crate::server::{self, Config};
+use crate::solve::{SolveResult, solve};
+
+/// Trajectory optimisation with iLQR, served over HTTP.
+#[derive(Debug, Parser)]
+#[command(name = "ilqr-service", version, about)]
+pub struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+}
+
+#[derive(Debug, Subcommand)]
+enum Command {
+    /// Serve the HTTP API (what the binary does with no subcommand).
+    Serve(Config),
+    /// Solve one problem file and print a summary.
+    Solve {
+        /// Problem JSON; `-` reads standard input. Omitted: the seed problem.
+        problem: Option<PathBuf>,
+        /// Write the full result JSON here (`-` for standard output).
+        #[arg(long, short)]
+        output: Option<PathBuf>,
+    },
+    /// Print the OpenAPI document.
+    Openapi,
+    /// Exit 0 if the service on this machine answers `GET /healthz` with 200
+    /// (for container health checks, which have no curl).
+    Healthcheck {
+        /// Address of the service.
+        #[arg(long, env = "ILQR_HEALTHCHECK_ADDR", default_value = "127.0.0.1:8080")]
+        addr: String,
+    },
+}
+
+/// Run the command line; the exit code is 0 on success, 1 on a runtime
+/// failure and 2 on invalid input.
+pub fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match cli.command {
+        None => serve(Config::default()),
+        Some(Command::Serve(config)) => serve(config),
+        Some(Command::Solve { problem, output }) => solve_file(problem, output),
+        Some(Command::Openapi) => {
+            println!("{}", server::openapi_json());
+            ExitCode::SUCCESS
+        }
+        Some(Command::Healthcheck { addr }) => match server::healthcheck(&addr) {
+            Ok(()) => ExitCode::SUCCESS,
+            Err(e) => {
+                eprintln!("unhealthy: {e}");
+                ExitCode::FAILURE
+            }
+        },
+    }
+}
+
+fn serve(config: Config) -> ExitCode {
+    match server::serve_forever(config) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
+    let spec = match read_problem(problem.as_ref()) {
+        Ok(spec) => spec,
+        Err(lines) => {
+            for l in lines {
+                eprintln!("error: {l}");
+            }
+            return ExitCode::from(2);
+        }
+    };
+    let result = match solve(&spec, None, &AtomicBool::new(false)) {
+        Ok(r) => r,
+        Err(e) => {
+            eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);
+            return ExitCode::from(2);
+        }
+    };
+    print!("{}", summary(&spec, &result));
+    if let Some(path) = output {
+        let json = match serde_json::to_string_pretty(&result) {
+            Ok(j) => j,
+            Err(e) => {
+                eprintln!("error: cannot serialise the result: {e}");
+                return ExitCode::FAILURE;
+            }
+        };
+        let written = if path.as_os_str() == "-" {
+            writeln!(std::io::stdout(), "{json}")
+        } else {
+            std::fs::write(&path, json + "\n")
+        };
+        if let Err(e) = written {
+            eprintln!("error: cannot write {}: {e}", path.display());
+            return ExitCode::FAILURE;
+        }
+    }
+    ExitCode::SUCCESS
+}
+
+fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, Vec<String>> {
+    let bytes = match path {
+        None => return Ok(ProblemSpec::default()),
+        Some(p) if p.as_os_str() == "-" => {
+            let mut buf = Vec::new();
+            std::io::stdin()
+                .read_to_end(&mut buf)
+                .map_err(|e| vec![format!("cannot read standard input: {e}")])?;
+            buf
+        }
+        Some(p) => {
+            std::fs::read(p).map_err(|e| vec![format!("cannot read {}: {e}", p.display())])?
+        }
+    };
+    let spec = parse(&bytes).map_err(|e| match e {
+        ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
+        ParseError::Shape(f) => vec![format!("{}: {}", pointer_label(&f.pointer), f.detail)],
+    })?;
+    spec.validate(&Limits::default()).map_err(|errs| {
+        errs.into_iter()
+            .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
+            .collect::<Vec<_>>()
+    })?;
+    Ok(spec)
+}
+
+fn pointer_label(pointer: &str) -> &str {
+    if pointer.is_empty() {
+        "(problem)"
+    } else {
+        pointer
+    }
+}
+
+/// The human summary printed by `solve`.
+pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
+    let mut s = format!(
+        "status           {}\niterations       {}\ncost             {:.6} (initial {:.6})\ngoal distance    {:.6} m\n",
+        r.status.as_str(),
+        r.iterations,
+        r.cost,
+        r.initial_cost,
+        r.goal_distance,
+    );
+    for (j, (o, d)) in spec.obstacles.iter().zip(&r.closest_approach).enumerate() {
+        s += &format!(
+            "obstacle {j}       closest approach {d:.4} m to ({}, {})\n",
+            o.center[0], o.center[1]
+        );
+    }
+    s += &format!("solve time       {:.3} ms\n", r.solve_time_ms);
+    s
+}

@@ -1,0 +1,489 @@
+//! The problem document: what a caller sends to `POST /solve`, the CLI reads
+//! from a file and the Python client builds.
+//!
+//! Every field is optional and defaults to the seed scenario of the paper, so
+//! `{}` is a complete problem. Unknown fields are rejected rather than
+//! ignored, so a typo (`"horizn"`) is an error and not a silent default.
+//!
+//! Room to grow without breaking requests: `model.type` and `integrator` are
+//! tagged enums with one variant today, and new obstacle shapes, constraints
+//! and warm starts arrive as new optional fields.
+//!
+//! [`ProblemSpec::validate`] checks every value before anything is solved and
+//! reports *all* problems at once, each with the JSON pointer of its field.
+
+use serde::{Deserialize, Deserializer, Serialize};
+use utoipa::ToSchema;
+
+use crate::schema;
+
+/// Largest accepted horizon unless the service is configured otherwise.
+pub const DEFAULT_MAX_HORIZON: usize = 10_000;
+/// Largest accepted `solver.max_iterations`.
+pub const MAX_ITERATIONS: usize = 10_000;
+/// Largest accepted number of obstacles.
+pub const MAX_OBSTACLES: usize = 100;
+
+/// A trajectory-optimisation problem for the planar quadrotor: minimise
+/// `Σ_k [(x_k − x_goal)ᵀQ(x_k − x_goal) + u_kᵀRu_k + Σ_j q_j·exp(−‖p_k − c_j‖)]
+/// + (x_N − x_goal)ᵀQ_f(x_N − x_goal)` subject to the Euler-discretised
+/// dynamics, from `initial_state`. All fields are optional; the defaults are
+/// the seed scenario.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+#[schema(example = json!(ProblemSpec::default()))]
+pub struct ProblemSpec {
+    /// The dynamics model and its physical parameters.
+    pub model: ModelSpec,
+    /// How the continuous dynamics are discretised.
+    pub integrator: Integrator,
+    /// Time step in seconds. Default 0.05.
+    #[schema(default = 0.05, exclusive_minimum = 0.0)]
+    pub dt: f64,
+    /// Number of control steps N (the trajectory has N + 1 states). Default
+    /// 100; at most 10000 (the service may be configured lower).
+    #[serde(deserialize_with = "de_count")]
+    #[schema(default = 100, minimum = 1, maximum = 10000)]
+    pub horizon: usize,
+    /// Initial state `[x, y, θ, ẋ, ẏ, θ̇]` in m, m, rad, m/s, m/s, rad/s.
+    /// Default `[5, 0, 0, 0, 0, 0]`.
+    #[schema(min_items = 6, max_items = 6)]
+    pub initial_state: [f64; 6],
+    /// Target state, same units. Default `[4, 9, 0, 0, 0, 0]`: the initial
+    /// state reflected through the default obstacle.
+    #[schema(min_items = 6, max_items = 6)]
+    pub goal_state: [f64; 6],
+    /// Diagonal cost weights.
+    pub weights: Weights,
+    /// Soft obstacles. Default: one at (4.5, 4.5) with weight 1000.
+    #[schema(max_items = 100)]
+    pub obstacles: Vec<Obstacle>,
+    /// Initial guess for the controls: N rows of `[u1, u2]` in N. Default:
+    /// hover thrust `m·g/2` on both rotors.
+    #[schema(schema_with = schema::rows_of_2)]
+    pub initial_controls: Option<Vec<[f64; 2]>>,
+    /// Termination settings.
+    pub solver: SolverSpec,
+    /// Which optional parts of the result to return.
+    pub output: OutputSpec,
+}
+
+/// Dynamics model. Only the planar quadrotor exists today.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct ModelSpec {
+    /// Model kind.
+    #[serde(rename = "type")]
+    pub kind: ModelKind,
+    /// Mass m in kg. Default 1.
+    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    pub mass: f64,
+    /// Moment of inertia I in kg·m². Default 1.
+    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    pub inertia: f64,
+    /// Distance r from the centre to each rotor in m. Default 1.
+    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    pub arm_length: f64,
+    /// Gravitational acceleration g in m/s². Default 9.81.
+    #[schema(default = 9.81, minimum = 0.0)]
+    pub gravity: f64,
+}
+
+/// Model kinds.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ModelKind {
+    /// State `[x, y, θ, ẋ, ẏ, θ̇]`, controls `[u1, u2]` (rotor thrusts, N).
+    #[default]
+    #[serde(rename = "quadrotor_2d")]
+    Quadrotor2d,
+}
+
+/// Discretisation of the continuous dynamics.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum Integrator {
+    /// Explicit Euler, `x_{k+1} = x_k + dt·f(x_k, u_k)`.
+    #[default]
+    Euler,
+}
+
+/// Diagonal weights of the quadratic cost terms (no ½ factors).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct Weights {
+    /// Diagonal of Q, the stage state weight. Default all 1.
+    #[schema(min_items = 6, max_items = 6)]
+    pub state: [f64; 6],
+    /// Diagonal of R, the control weight. Default `[0.1, 0.1]`.
+    #[schema(min_items = 2, max_items = 2)]
+    pub control: [f64; 2],
+    /// Diagonal of Q_f, the terminal state weight. Default all 50000.
+    #[schema(min_items = 6, max_items = 6)]
+    pub terminal: [f64; 6],
+}
+
+/// A soft obstacle: adds `weight·exp(−‖p − center‖)` to every stage cost,
+/// where p is the quadrotor's position.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(deny_unknown_fields)]
+pub struct Obstacle {
+    /// Centre `[x, y]` in m.
+    #[schema(min_items = 2, max_items = 2)]
+    pub center: [f64; 2],
+    /// Weight q (cost units, ≥ 0).
+    #[schema(minimum = 0.0)]
+    pub weight: f64,
+}
+
+/// When to stop.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct SolverSpec {
+    /// Iteration limit. Default 100, at most 10000.
+    #[serde(deserialize_with = "de_count")]
+    #[schema(default = 100, minimum = 0, maximum = 10000)]
+    pub max_iterations: usize,
+    /// Relative cost change below which the solve has converged. Default 1e-9.
+    #[schema(default = 1e-9, minimum = 0.0, exclusive_maximum = 1.0)]
+    pub tolerance: f64,
+    /// Wall-clock budget in ms. When it runs out the solve stops with status
+    /// `time_limit` and returns the best trajectory so far. Unset: the
+    /// service's default (the CLI has none).
+    #[serde(deserialize_with = "de_opt_count")]
+    #[schema(minimum = 1)]
+    pub time_limit_ms: Option<u64>,
+}
+
+/// Optional parts of the result. Leaving them out shrinks large responses.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct OutputSpec {
+    /// Include `gains` (feedback and feedforward). Default true.
+    #[schema(default = true)]
+    pub gains: bool,
+    /// Include the per-iteration `trace`. Default true.
+    #[schema(default = true)]
+    pub trace: bool,
+}
+
+impl Default for ProblemSpec {
+    fn default() -> Self {
+        Self {
+            model: ModelSpec::default(),
+            integrator: Integrator::Euler,
+            dt: 0.05,
+            horizon: 100,
+            initial_state: [5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+            goal_state: [4.0, 9.0, 0.0, 0.0, 0.0, 0.0],
+            weights: Weights::default(),
+            obstacles: vec![Obstacle {
+                center: [4.5, 4.5],
+                weight: 1000.0,
+            }],
+            initial_controls: None,
+            solver: SolverSpec::default(),
+            output: OutputSpec::default(),
+        }
+    }
+}
+
+impl Default for ModelSpec {
+    fn default() -> Self {
+        Self {
+            kind: ModelKind::Quadrotor2d,
+            mass: 1.0,
+            inertia: 1.0,
+            arm_length: 1.0,
+            gravity: 9.81,
+        }
+    }
+}
+
+impl Default for Weights {
+    fn default() -> Self {
+        Self {
+            state: [1.0; 6],
+            control: [0.1; 2],
+            terminal: [50000.0; 6],
+        }
+    }
+}
+
+impl Default for SolverSpec {
+    fn default() -> Self {
+        Self {
+            max_iterations: 100,
+            tolerance: 1e-9,
+            time_limit_ms: None,
+        }
+    }
+}
+
+impl Default for OutputSpec {
+    fn default() -> Self {
+        Self {
+            gains: true,
+            trace: true,
+        }
+    }
+}
+
+/// One invalid value: where it is and what was expected.
+#[derive(Debug, Clone, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+pub struct FieldError {
+    /// RFC 6901 JSON pointer to the field, e.g. `/weights/state/2`.
+    pub pointer: String,
+    /// What was wrong and what is expected.
+    pub detail: String,
+}
+
+/// Limits that depend on who is asking (the CLI accepts more than a shared
+/// service might).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Limits {
+    /// Largest horizon accepted.
+    pub max_horizon: usize,
+    /// Largest `solver.time_limit_ms` accepted, if any.
+    pub max_time_limit_ms: Option<u64>,
+}
+
+impl Default for Limits {
+    fn default() -> Self {
+        Self {
+            max_horizon: DEFAULT_MAX_HORIZON,
+            max_time_limit_ms: None,
+        }
+    }
+}
+
+impl ProblemSpec {
+    /// Check every value; returns all the problems found, or nothing.
+    pub fn validate(&self, limits: &Limits) -> Result<(), Vec<FieldError>> {
+        let mut v = Checker::default();
+        let m = &self.model;
+        v.positive("/model/mass", m.mass, "kg");
+        v.positive("/model/inertia", m.inertia, "kg·m²");
+        v.positive("/model/arm_length", m.arm_length, "m");
+        v.non_negative("/model/gravity", m.gravity, "m/s²");
+        v.positive("/dt", self.dt, "s");
+        if self.horizon == 0 || self.horizon > limits.max_horizon {
+            v.push(
+                "/horizon",
+                format!(
+                    "must be an integer from 1 to {}, got {}",
+                    limits.max_horizon, self.horizon
+                ),
+            );
+        }
+        v.finite_all("/initial_state", &self.initial_state);
+        v.finite_all("/goal_state", &self.goal_state);
+        v.non_negative_all("/weights/state", &self.weights.state);
+        v.non_negative_all("/weights/control", &self.weights.control);
+        v.non_negative_all("/weights/terminal", &self.weights.terminal);
+        if self.obstacles.len() > MAX_OBSTACLES {
+            v.push(
+                "/obstacles",
+                format!(
+                    "at most {MAX_OBSTACLES} obstacles, got {}",
+                    self.obstacles.len()
+                ),
+            );
+        }
+        for (j, o) in self.obstacles.iter().enumerate() {
+            v.finite_all(&format!("/obstacles/{j}/center"), &o.center);
+            v.non_negative(&format!("/obstacles/{j}/weight"), o.weight, "cost units");
+        }
+        if let Some(us) = &self.initial_controls {
+            if us.len() != self.horizon {
+                v.push(
+                    "/initial_controls",
+                    format!(
+                        "must have one [u1, u2] row per step: expected {} rows (the horizon), got {}",
+                        self.horizon,
+                        us.len()
+                    ),
+                );
+            }
+            for (k, u) in us.iter().enumerate() {
+                v.finite_all(&format!("/initial_controls/{k}"), u);
+            }
+        }
+        let s = &self.solver;
+        if s.max_iterations > MAX_ITERATIONS {
+            v.push(
+                "/solver/max_iterations",
+                format!("must be at most {MAX_ITERATIONS}, got {}", s.max_iterations),
+            );
+        }
+        if !(s.tolerance.is_finite() && (0.0..1.0).contains(&s.tolerance)) {
+            v.push(
+                "/solver/tolerance",
+                format!(
+                    "must be a number in [0, 1) (relative cost change), got {}",
+                    s.tolerance
+                ),
+            );
+        }
+        if let Some(t) = s.time_limit_ms {
+            let max = limits.max_time_limit_ms.unwrap_or(u64::MAX);
+            if t == 0 || t > max {
+                v.push(
+                    "/solver/time_limit_ms",
+                    format!("must be an integer from 1 to {max} (ms), got {t}"),
+                );
+            }
+        }
+        v.finish()
+    }
+}
+
+#[derive(Default)]
+struct Checker(Vec<FieldError>);
+
+impl Checker {
+    fn push(&mut self, pointer: &str, detail: String) {
+        self.0.push(FieldError {
+            pointer: pointer.to_owned(),
+            detail,
+        });
+    }
+
+    fn positive(&mut self, pointer: &str, x: f64, unit: &str) {
+        if !(x.is_finite() && x > 0.0) {
+            self.push(
+                pointer,
+                format!("must be a positive finite number ({unit}), got {x}"),
+            );
+        }
+    }
+
+    fn non_negative(&mut self, pointer: &str, x: f64, unit: &str) {
+        if !(x.is_finite() && x >= 0.0) {
+            self.push(
+                pointer,
+                format!("must be a finite number ≥ 0 ({unit}), got {x}"),
+            );
+        }
+    }
+
+    fn finite_all(&mut self, pointer: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            if !x.is_finite() {
+                self.push(
+                    &format!("{pointer}/{i}"),
+                    format!("must be a finite number, got {x}"),
+                );
+            }
+        }
+    }
+
+    fn non_negative_all(&mut self, pointer: &str, xs: &[f64]) {
+        for (i, x) in xs.iter().enumerate() {
+            self.non_negative(&format!("{pointer}/{i}"), *x, "weight");
+        }
+    }
+
+    fn finish(self) -> Result<(), Vec<FieldError>> {
+        if self.0.is_empty() {
+            Ok(())
+        } else {
+            Err(self.0)
+        }
+    }
+}
+
+/// Accept a count written as an integer or as an integral float (`100.0`):
+/// JSON Schema calls both integers, and clients that build JSON from floats
+/// should not get a type error for it.
+fn de_count<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    let n = serde_json::Number::deserialize(d)?;
+    number_to_count(&n)
+        .and_then(|c| usize::try_from(c).ok())
+        .ok_or_else(|| {
+            serde::de::Error::custom(format!("expected a non-negative integer, got {n}"))
+        })
+}
+
+fn de_opt_count<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
+    match Option::<serde_json::Number>::deserialize(d)? {
+        None => Ok(None),
+        Some(n) => number_to_count(&n).map(Some).ok_or_else(|| {
+            serde::de::Error::custom(format!("expected a non-negative integer or null, got {n}"))
+        }),
+    }
+}
+
+fn number_to_count(n: &serde_json::Number) -> Option<u64> {
+    if let Some(u) = n.as_u64() {
+        return Some(u);
+    }
+    let f = n.as_f64()?;
+    // 2^53: beyond it f64 no longer holds every integer.
+    (f >= 0.0 && f.fract() == 0.0 && f <= 9_007_199_254_740_992.0).then_some(f as u64)
+}
+
+/// Why a request body is not a problem document.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ParseError {
+    /// Not JSON at all (HTTP 400).
+    Syntax(String),
+    /// JSON of the wrong shape: a wrong type or length, an unknown field
+    /// (HTTP 422). Carries the pointer of the offending field.
+    Shape(FieldError),
+}
+
+/// Parse a problem document, locating shape errors with a JSON pointer.
+pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
+    let de = &mut serde_json::Deserializer::from_slice(bytes);
+    match serde_path_to_error::deserialize::<_, ProblemSpec>(de) {
+        Ok(spec) => {
+            // Trailing garbage after the document is a syntax error too.
+            let mut de =
+                serde_json::Deserializer::from_slice(bytes).into_iter::<serde_json::Value>();
+            let _ = de.next();
+            if de.next().is_some() {
+                return Err(ParseError::Syntax(
+                    "unexpected data after the JSON document".into(),
+                ));
+            }
+            Ok(spec)
+        }
+        Err(e) => {
+            let pointer = pointer_of(e.path());
+            let inner = e.into_inner();
+            match inner.classify() {
+                serde_json::error::Category::Data => Err(ParseError::Shape(FieldError {
+                    pointer,
+                    detail: strip_position(&inner.to_string()),
+                })),
+                _ => Err(ParseError::Syntax(inner.to_string())),
+            }
+        }
+    }
+}
+
+/// RFC 6901 pointer of a serde path (`weights.state[2]` → `/weights/state/2`).
+fn pointer_of(path: &serde_path_to_error::Path) -> String {
+    use serde_path_to_error::Segment;
+    let mut out = String::new();
+    for seg in path.iter() {
+        out.push('/');
+        match seg {
+            Segment::Seq { index } => out.push_str(&index.to_string()),
+            Segment::Map { key } | Segment::Enum { variant: key } => {
+                out.push_str(&key.replace('~', "~0").replace('/', "~1"))
+            }
+            Segment::Unknown => out.push('?'),
+        }
+    }
+    out
+}
+
+/// serde_json appends " at line 1 column 20"; the pointer says it better.
+fn strip_position(msg: &str) -> String {
+    match msg.rfind(" at line ") {
+        Some(i) => msg[..i].to_owned(),
+        None => msg.to_owned(),
+    }
+}

@@ -1,0 +1,189 @@
+//! RFC 9457 problem documents: every error the service returns.
+//!
+//! Each variant of [`ApiError`] is one kind of failure with one HTTP status
+//! and one `type` URI, so clients can branch on either. Validation errors
+//! carry `errors`, a list of JSON pointers into the request with what was
+//! expected at each. Internal failures are logged with their cause but shown
+//! to the client only as "internal error" with the request id.
+
+use axum::http::{HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::problem::FieldError;
+
+/// Media type of problem documents.
+pub const PROBLEM_JSON: &str = "application/problem+json";
+
+/// An RFC 9457 problem document.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Problem {
+    /// A URI naming the kind of problem, e.g. `urn:ilqr-service:validation`.
+    #[serde(rename = "type")]
+    pub kind: String,
+    /// Short summary of the kind of problem.
+    pub title: String,
+    /// The HTTP status code.
+    pub status: u16,
+    /// What went wrong in this request.
+    pub detail: String,
+    /// For validation errors: every offending field.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub errors: Vec<FieldError>,
+    /// Seconds to wait before retrying (overload only; also sent as the
+    /// `Retry-After` header).
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub retry_after: Option<u64>,
+}
+
+/// Every way a request can fail.
+#[derive(Debug, Clone, PartialEq)]
+pub enum ApiError {
+    /// The body is not JSON (400).
+    MalformedJson(String),
+    /// The body is JSON but not a valid problem (422).
+    Validation(Vec<FieldError>),
+    /// `Content-Type` is missing or not JSON (415).
+    UnsupportedMediaType,
+    /// The body exceeds the configured limit (413).
+    PayloadTooLarge(usize),
+    /// The queue is full (503 with `Retry-After`).
+    Overloaded { retry_after: u64 },
+    /// The service is shutting down (503).
+    ShuttingDown,
+    /// A bug: a solver panic or a lost worker (500).
+    Internal,
+    /// No such route (404).
+    NotFound,
+    /// Wrong method for the route (405).
+    MethodNotAllowed,
+}
+
+impl ApiError {
+    fn parts(&self) -> (StatusCode, &'static str, &'static str) {
+        match self {
+            Self::MalformedJson(_) => (StatusCode::BAD_REQUEST, "malformed-json", "Malformed JSON"),
+            Self::Validation(_) => (
+                StatusCode::UNPROCESSABLE_ENTITY,
+                "validation",
+                "Invalid problem",
+            ),
+            Self::UnsupportedMediaType => (
+                StatusCode::UNSUPPORTED_MEDIA_TYPE,
+                "unsupported-media-type",
+                "Unsupported media type",
+            ),
+            Self::PayloadTooLarge(_) => (
+                StatusCode::PAYLOAD_TOO_LARGE,
+                "payload-too-large",
+                "Request body too large",
+            ),
+            Self::Overloaded { .. } => (
+                StatusCode::SERVICE_UNAVAILABLE,
+                "overloaded",
+                "Solver queue full",
+            ),
+            Self::ShuttingDown => (
+                StatusCode::SERVICE_UNAVAILABLE,
+                "shutting-down",
+                "Service shutting down",
+            ),
+            Self::Internal => (
+                StatusCode::INTERNAL_SERVER_ERROR,
+                "internal",
+                "Internal error",
+            ),
+            Self::NotFound => (StatusCode::NOT_FOUND, "not-found", "Not found"),
+            Self::MethodNotAllowed => (
+                StatusCode::METHOD_NOT_ALLOWED,
+                "method-not-allowed",
+                "Method not allowed",
+            ),
+        }
+    }
+
+    /// The problem document for this error.
+    pub fn problem(&self) -> Problem {
+        let (status, slug, title) = self.parts();
+        let (detail, errors, retry_after) = match self {
+            Self::MalformedJson(msg) => {
+                (format!("the body is not valid JSON: {msg}"), vec![], None)
+            }
+            Self::Validation(errors) => {
+                let detail = match errors.as_slice() {
+                    [one] => format!("{}: {}", label(&one.pointer), one.detail),
+                    many => format!("{} invalid fields; see `errors`", many.len()),
+                };
+                (detail, errors.clone(), None)
+            }
+            Self::UnsupportedMediaType => (
+                "send the problem as JSON with `Content-Type: application/json`".into(),
+                vec![],
+                None,
+            ),
+            Self::PayloadTooLarge(limit) => (
+                format!("the body exceeds the limit of {limit} bytes"),
+                vec![],
+                None,
+            ),
+            Self::Overloaded { retry_after } => (
+                format!("every worker is busy and the queue is full; retry in {retry_after} s"),
+                vec![],
+                Some(*retry_after),
+            ),
+            Self::ShuttingDown => (
+                "the service is draining before shutdown; retry on another replica".into(),
+                vec![],
+                None,
+            ),
+            Self::Internal => (
+                "the solve failed unexpectedly; the x-request-id header identifies it in the logs"
+                    .into(),
+                vec![],
+                None,
+            ),
+            Self::NotFound => ("no such route; see /docs".into(), vec![], None),
+            Self::MethodNotAllowed => (
+                "this route does not accept that method; see /docs".into(),
+                vec![],
+                None,
+            ),
+        };
+        Problem {
+            kind: format!("urn:ilqr-service:{slug}"),
+            title: title.into(),
+            status: status.as_u16(),
+            detail,
+            errors,
+            retry_after,
+        }
+    }
+
+    /// The HTTP status.
+    pub fn status(&self) -> StatusCode {
+        self.parts().0
+    }
+}
+
+fn label(pointer: &str) -> &str {
+    if pointer.is_empty() {
+        "(body)"
+    } else {
+        pointer
+    }
+}
+
+impl IntoResponse for ApiError {
+    fn into_response(self) -> Response {
+        let problem = self.problem();
+        let body = serde_json::to_vec(&problem).unwrap_or_default();
+        let mut res = (self.status(), body).into_response();
+        let headers = res.headers_mut();
+        headers.insert(header::CONTENT_TYPE, HeaderValue::from_static(PROBLEM_JSON));
+        if let Some(secs) = problem.retry_after {
+            headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
+        }
+        res
+    }
+}

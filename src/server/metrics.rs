@@ -1,0 +1,63 @@
+//! Prometheus metrics.
+//!
+//! One process-wide recorder from the `metrics` facade, rendered by
+//! `GET /metrics`. Names:
+//!
+//! * `http_requests_total{route, status}`, counter;
+//! * `solves_total{status}`, counter, by solve status (`converged`, …);
+//! * `solve_rejections_total{reason}`, counter: `invalid`, `queue_full`,
+//!   `shutting_down`, `panic`;
+//! * `solve_queue_depth`, gauge: solves waiting for a worker;
+//! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
+//! * `solve_iterations`, histogram.
+
+use std::sync::OnceLock;
+
+use axum::extract::{MatchedPath, Request};
+use axum::middleware::Next;
+use axum::response::Response;
+use metrics_exporter_prometheus::{Matcher, PrometheusBuilder, PrometheusHandle};
+
+static HANDLE: OnceLock<PrometheusHandle> = OnceLock::new();
+
+/// The process-wide recorder, installed on first use. Several servers in one
+/// process (as in tests) share it.
+pub fn handle() -> &'static PrometheusHandle {
+    HANDLE.get_or_init(|| {
+        let seconds = [
+            0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0,
+            2.5, 5.0, 10.0, 30.0, 60.0,
+        ];
+        let iterations = [
+            1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 10000.0,
+        ];
+        let builder = PrometheusBuilder::new()
+            .set_buckets_for_metric(Matcher::Suffix("_seconds".into()), &seconds)
+            .and_then(|b| {
+                b.set_buckets_for_metric(Matcher::Full("solve_iterations".into()), &iterations)
+            })
+            .unwrap_or_else(|_| PrometheusBuilder::new());
+        let recorder = builder.build_recorder();
+        let handle = recorder.handle();
+        // Fails only if another recorder is installed; then ours stays empty,
+        // which /metrics makes visible rather than hiding.
+        let _ = metrics::set_global_recorder(recorder);
+        handle
+    })
+}
+
+/// Middleware counting requests by matched route and status.
+pub async fn track(req: Request, next: Next) -> Response {
+    let route = req
+        .extensions()
+        .get::<MatchedPath>()
+        .map_or_else(|| "unmatched".to_owned(), |p| p.as_str().to_owned());
+    let res = next.run(req).await;
+    metrics::counter!(
+        "http_requests_total",
+        "route" => route,
+        "status" => res.status().as_u16().to_string()
+    )
+    .increment(1);
+    res
+}

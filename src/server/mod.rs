@@ -1,0 +1,305 @@
+//! The HTTP service: configuration, state, middleware, shutdown.
+//!
+//! # Mechanisms
+//!
+//! * **Admission.** `POST /solve` validates the problem on the async runtime
+//!   (cheap), then hands it to the [`pool::Pool`]. A full queue answers 503
+//!   with `Retry-After` at once; nothing waits for a slot.
+//! * **Time budget.** Every solve gets `solver.time_limit_ms` or the
+//!   configured default; the solver checks it every iteration and returns the
+//!   best trajectory so far with status `time_limit`.
+//! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
+//!   polls every iteration. A guard owned by the request handler sets it when
+//!   the handler is dropped, which is what hyper does when the client
+//!   disconnects. Shutdown sets every registered flag after the grace period.
+//! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers
+//!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
+//!   cancelled (they answer 200 with status `cancelled`), then the server
+//!   stops.
+
+mod error;
+mod metrics;
+pub mod pool;
+mod routes;
+
+use std::collections::HashMap;
+use std::future::Future;
+use std::io::{Read, Write};
+use std::net::SocketAddr;
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
+use std::sync::{Arc, Mutex};
+use std::time::Duration;
+
+use tokio::net::TcpListener;
+use tokio::sync::Notify;
+
+pub use error::{ApiError, PROBLEM_JSON, Problem};
+pub use routes::{ApiDoc, app, openapi, openapi_json};
+
+use crate::problem::{DEFAULT_MAX_HORIZON, Limits};
+use pool::Pool;
+
+/// Service configuration: flags, each also read from an environment variable.
+#[derive(Debug, Clone, clap::Args)]
+pub struct Config {
+    /// Address to listen on.
+    #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080")]
+    pub bind: SocketAddr,
+    /// Solver threads (default: the available cores).
+    #[arg(long, env = "ILQR_WORKERS")]
+    pub workers: Option<usize>,
+    /// Solves that may wait for a worker before new ones get 503.
+    #[arg(long, env = "ILQR_QUEUE_CAPACITY", default_value_t = 16)]
+    pub queue_capacity: usize,
+    /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms.
+    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000)]
+    pub default_time_limit_ms: u64,
+    /// Largest `solver.time_limit_ms` a request may ask for, in ms.
+    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000)]
+    pub max_time_limit_ms: u64,
+    /// Largest accepted horizon.
+    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON)]
+    pub max_horizon: usize,
+    /// Largest accepted request body, in bytes.
+    #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
+    pub max_body_bytes: usize,
+    /// Seconds in-flight solves get to finish on shutdown before they are
+    /// cancelled.
+    #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10)]
+    pub shutdown_grace_secs: u64,
+    /// `Retry-After` sent with 503 overload answers, in seconds.
+    #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1)]
+    pub retry_after_secs: u64,
+    /// Log format.
+    #[arg(long, env = "ILQR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
+    pub log_format: LogFormat,
+}
+
+/// Log output format.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+pub enum LogFormat {
+    /// Human-readable lines.
+    Text,
+    /// One JSON object per line.
+    Json,
+}
+
+impl Default for Config {
+    fn default() -> Self {
+        <Self as clap::FromArgMatches>::from_arg_matches(
+            &<Self as clap::Args>::augment_args(clap::Command::new("serve"))
+                .get_matches_from(["serve"]),
+        )
+        .expect("defaults parse")
+    }
+}
+
+impl Config {
+    /// Problem limits this configuration imposes.
+    pub fn limits(&self) -> Limits {
+        Limits {
+            max_horizon: self.max_horizon,
+            max_time_limit_ms: Some(self.max_time_limit_ms),
+        }
+    }
+
+    fn workers(&self) -> usize {
+        self.workers.unwrap_or_else(|| {
+            std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
+        })
+    }
+}
+
+/// Shared state of the service.
+pub struct AppState {
+    config: Config,
+    pool: Pool,
+    draining: AtomicBool,
+    /// Cancellation flags of admitted solves, by admission number.
+    inflight: Mutex<HashMap<u64, Arc<AtomicBool>>>,
+    next_id: AtomicU64,
+    /// Signalled whenever an admitted solve finishes.
+    finished: Notify,
+}
+
+impl AppState {
+    /// State for `config`, starting the solver pool.
+    pub fn new(config: Config) -> std::io::Result<Arc<Self>> {
+        let pool = Pool::new(config.workers(), config.queue_capacity)?;
+        Ok(Arc::new(Self {
+            config,
+            pool,
+            draining: AtomicBool::new(false),
+            inflight: Mutex::new(HashMap::new()),
+            next_id: AtomicU64::new(0),
+            finished: Notify::new(),
+        }))
+    }
+
+    fn is_draining(&self) -> bool {
+        self.draining.load(Ordering::SeqCst)
+    }
+
+    fn inflight_count(&self) -> usize {
+        self.inflight.lock().map_or(0, |m| m.len())
+    }
+
+    /// Register a solve; the guard cancels and unregisters it when dropped.
+    fn admit(self: &Arc<Self>) -> InFlight {
+        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
+        let flag = Arc::new(AtomicBool::new(false));
+        if let Ok(mut m) = self.inflight.lock() {
+            m.insert(id, Arc::clone(&flag));
+        }
+        InFlight {
+            state: Arc::clone(self),
+            id,
+            flag,
+        }
+    }
+
+    fn cancel_all(&self) {
+        if let Ok(m) = self.inflight.lock() {
+            for flag in m.values() {
+                flag.store(true, Ordering::SeqCst);
+            }
+        }
+    }
+
+    /// Stop admitting, wait up to the grace period for in-flight solves,
+    /// then cancel what is left.
+    pub async fn drain(&self) {
+        self.draining.store(true, Ordering::SeqCst);
+        let grace = Duration::from_secs(self.config.shutdown_grace_secs);
+        tracing::info!(inflight = self.inflight_count(), ?grace, "draining");
+        let wait = async {
+            loop {
+                let notified = self.finished.notified();
+                if self.inflight_count() == 0 {
+                    return;
+                }
+                notified.await;
+            }
+        };
+        if tokio::time::timeout(grace, wait).await.is_err() {
+            tracing::warn!(
+                inflight = self.inflight_count(),
+                "grace period over; cancelling in-flight solves"
+            );
+            self.cancel_all();
+        }
+    }
+}
+
+/// An admitted solve. Dropping it (the handler finished, or was dropped
+/// because the client went away) cancels the solve if it is still running.
+struct InFlight {
+    state: Arc<AppState>,
+    id: u64,
+    flag: Arc<AtomicBool>,
+}
+
+impl Drop for InFlight {
+    fn drop(&mut self) {
+        self.flag.store(true, Ordering::SeqCst);
+        if let Ok(mut m) = self.state.inflight.lock() {
+            m.remove(&self.id);
+        }
+        self.state.finished.notify_waiters();
+    }
+}
+
+/// Serve on `listener` until `shutdown` resolves, then drain and return.
+pub async fn run(
+    listener: TcpListener,
+    state: Arc<AppState>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    let app = app(Arc::clone(&state));
+    let drain = async move {
+        shutdown.await;
+        state.drain().await;
+    };
+    axum::serve(listener, app)
+        .with_graceful_shutdown(drain)
+        .await
+}
+
+/// Resolves on SIGINT or SIGTERM.
+pub async fn shutdown_signal() {
+    let ctrl_c = async {
+        let _ = tokio::signal::ctrl_c().await;
+    };
+    #[cfg(unix)]
+    let term = async {
+        match tokio::signal::unix::signal(tokio::signal::unix::SignalKind::terminate()) {
+            Ok(mut s) => {
+                s.recv().await;
+            }
+            Err(_) => std::future::pending::<()>().await,
+        }
+    };
+    #[cfg(not(unix))]
+    let term = std::future::pending::<()>();
+    tokio::select! {
+        () = ctrl_c => {},
+        () = term => {},
+    }
+    tracing::info!("shutdown signal received");
+}
+
+/// The `serve` subcommand: logging, runtime, listener, signals.
+pub fn serve_forever(config: Config) -> std::io::Result<()> {
+    init_logging(config.log_format);
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .enable_all()
+        .build()?;
+    runtime.block_on(async move {
+        let listener = TcpListener::bind(config.bind).await?;
+        tracing::info!(
+            addr = %listener.local_addr()?,
+            workers = config.workers(),
+            queue_capacity = config.queue_capacity,
+            "listening"
+        );
+        let state = AppState::new(config)?;
+        run(listener, state, shutdown_signal()).await
+    })
+}
+
+fn init_logging(format: LogFormat) {
+    use tracing_subscriber::EnvFilter;
+    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    let builder = tracing_subscriber::fmt().with_env_filter(filter);
+    let _ = match format {
+        LogFormat::Text => builder.try_init(),
+        LogFormat::Json => builder
+            .json()
+            .flatten_event(true)
+            .with_current_span(true)
+            .try_init(),
+    };
+}
+
+/// `GET /healthz` over a plain TCP socket, for container health checks.
+pub fn healthcheck(addr: &str) -> Result<(), String> {
+    let timeout = Duration::from_secs(2);
+    let sock: SocketAddr = addr
+        .parse()
+        .map_err(|e| format!("bad address {addr}: {e}"))?;
+    let mut stream =
+        std::net::TcpStream::connect_timeout(&sock, timeout).map_err(|e| e.to_string())?;
+    stream
+        .set_read_timeout(Some(timeout))
+        .map_err(|e| e.to_string())?;
+    stream
+        .write_all(b"GET /healthz HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
+        .map_err(|e| e.to_string())?;
+    let mut head = [0u8; 12];
+    stream.read_exact(&mut head).map_err(|e| e.to_string())?;
+    if head.starts_with(b"HTTP/1.1 200") {
+        Ok(())
+    } else {
+        Err(format!("answer: {}", String::from_utf8_lossy(&head)))
+    }
+}

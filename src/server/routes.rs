@@ -1,0 +1,300 @@
+//! Routes, handlers and the OpenAPI document generated from them.
+
+use std::sync::Arc;
+use std::time::Duration;
+
+use axum::Json;
+use axum::body::Bytes;
+use axum::extract::{DefaultBodyLimit, FromRequest, Request, State};
+use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
+use axum::response::{IntoResponse, Response};
+use serde::Serialize;
+use tower::ServiceBuilder;
+use tower_http::catch_panic::CatchPanicLayer;
+use tower_http::compression::CompressionLayer;
+use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
+use tower_http::trace::TraceLayer;
+use utoipa::{OpenApi, ToSchema};
+use utoipa_axum::router::OpenApiRouter;
+use utoipa_axum::routes;
+use utoipa_swagger_ui::SwaggerUi;
+
+use super::error::{ApiError, Problem};
+use super::{AppState, metrics};
+use crate::problem::{ParseError, ProblemSpec, parse};
+use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
+
+/// The OpenAPI document's fixed parts; paths come from the router.
+#[derive(OpenApi)]
+#[openapi(
+    info(
+        title = "ilqr-service",
+        description = "Trajectory optimisation with iLQR for a planar quadrotor. POST a problem \
+                       (every field optional: `{}` is the seed scenario) and get back the optimal \
+                       trajectory, the time-varying feedback gains and the iteration trace. \
+                       Errors are RFC 9457 problem documents."
+    ),
+    tags(
+        (name = "solve", description = "Trajectory solves"),
+        (name = "operations", description = "Health, readiness and metrics")
+    )
+)]
+pub struct ApiDoc;
+
+fn api_router() -> OpenApiRouter<Arc<AppState>> {
+    OpenApiRouter::with_openapi(ApiDoc::openapi())
+        .routes(routes!(solve))
+        .routes(routes!(default_problem))
+        .routes(routes!(healthz))
+        .routes(routes!(readyz))
+        .routes(routes!(metrics_text))
+}
+
+/// The OpenAPI document (no server state needed).
+pub fn openapi() -> utoipa::openapi::OpenApi {
+    api_router().split_for_parts().1
+}
+
+/// The OpenAPI document as pretty JSON, as committed in `openapi/openapi.json`.
+pub fn openapi_json() -> String {
+    openapi()
+        .to_pretty_json()
+        .unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+}
+
+/// The whole application: routes, docs and middleware.
+pub fn app(state: Arc<AppState>) -> axum::Router {
+    let body_limit = state.config.max_body_bytes;
+    let (router, spec) = api_router().with_state(state).split_for_parts();
+    let router = router
+        .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
+        .fallback(not_found)
+        .method_not_allowed_fallback(method_not_allowed)
+        .layer(DefaultBodyLimit::max(body_limit))
+        .layer(axum::middleware::from_fn(metrics::track));
+    router.layer(
+        ServiceBuilder::new()
+            .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
+            .layer(
+                TraceLayer::new_for_http().make_span_with(|req: &Request| {
+                    let id = req
+                        .headers()
+                        .get("x-request-id")
+                        .and_then(|v| v.to_str().ok())
+                        .unwrap_or("-");
+                    tracing::info_span!("request", request_id = %id, method = %req.method(), uri = %req.uri())
+                }),
+            )
+            .layer(PropagateRequestIdLayer::x_request_id())
+            .layer(CompressionLayer::new())
+            .layer(CatchPanicLayer::custom(|_| ApiError::Internal.into_response())),
+    )
+}
+
+/// A JSON problem body: checks the content type, honours the body limit and
+/// maps every failure to a problem document with a pointer.
+pub struct ProblemJson(pub ProblemSpec);
+
+impl<S: Send + Sync> FromRequest<S> for ProblemJson {
+    type Rejection = ApiError;
+
+    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
+        if !is_json(req.headers()) {
+            return Err(ApiError::UnsupportedMediaType);
+        }
+        let limit = req.extensions().get::<BodyLimit>().map_or(0, |l| l.0);
+        let bytes = Bytes::from_request(req, state).await.map_err(|rej| {
+            if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                ApiError::PayloadTooLarge(limit)
+            } else {
+                ApiError::MalformedJson(rej.body_text())
+            }
+        })?;
+        match parse(&bytes) {
+            Ok(spec) => Ok(Self(spec)),
+            Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
+            Err(ParseError::Shape(f)) => Err(ApiError::Validation(vec![f])),
+        }
+    }
+}
+
+/// The configured body limit, for the 413 message.
+#[derive(Clone, Copy)]
+struct BodyLimit(usize);
+
+fn is_json(headers: &HeaderMap) -> bool {
+    let Some(ct) = headers
+        .get(header::CONTENT_TYPE)
+        .and_then(|v| v.to_str().ok())
+    else {
+        return false;
+    };
+    let essence = ct
+        .split(';')
+        .next()
+        .unwrap_or("")
+        .trim()
+        .to_ascii_lowercase();
+    essence == "application/json"
+        || (essence.starts_with("application/") && essence.ends_with("+json"))
+}
+
+/// Solve a trajectory-optimisation problem.
+///
+/// Every field is optional and defaults to the seed scenario, so `{}` solves
+/// the paper's problem. The solve runs on the worker pool within its time
+/// budget; how it ended is `status` in a 200 answer. Only invalid input is an
+/// error.
+#[utoipa::path(
+    post,
+    path = "/solve",
+    tag = "solve",
+    request_body(content = ProblemSpec, content_type = "application/json"),
+    responses(
+        (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult),
+        (status = 400, description = "The body is not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Content-Type is not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
+        (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
+        (status = 503, description = "Queue full (with Retry-After) or shutting down", body = Problem, content_type = "application/problem+json",
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
+    )
+)]
+async fn solve(
+    State(st): State<Arc<AppState>>,
+    ProblemJson(spec): ProblemJson,
+) -> Result<Json<SolveResult>, ApiError> {
+    if st.is_draining() {
+        return Err(reject(ApiError::ShuttingDown, "shutting_down"));
+    }
+    spec.validate(&st.config.limits())
+        .map_err(|e| reject(ApiError::Validation(e), "invalid"))?;
+
+    let guard = st.admit();
+    let cancel = Arc::clone(&guard.flag);
+    let default_limit = Duration::from_millis(st.config.default_time_limit_ms);
+    let rx = st
+        .pool
+        .submit(move || run_solve(&spec, Some(default_limit), &cancel))
+        .map_err(|_| {
+            reject(
+                ApiError::Overloaded {
+                    retry_after: st.config.retry_after_secs,
+                },
+                "queue_full",
+            )
+        })?;
+    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
+    let done = rx.await.map_err(|_| {
+        tracing::error!("solver worker dropped a job");
+        ApiError::Internal
+    })?;
+    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
+    drop(guard);
+    ::metrics::histogram!("solve_queue_wait_seconds").record(done.queued.as_secs_f64());
+    match done.outcome {
+        Ok(Ok(mut result)) => {
+            result.queue_time_ms = done.queued.as_secs_f64() * 1e3;
+            ::metrics::counter!("solves_total", "status" => result.status.as_str()).increment(1);
+            ::metrics::histogram!("solve_duration_seconds").record(result.solve_time_ms / 1e3);
+            ::metrics::histogram!("solve_iterations").record(result.iterations as f64);
+            tracing::info!(
+                status = result.status.as_str(),
+                iterations = result.iterations,
+                cost = result.cost,
+                solve_ms = result.solve_time_ms,
+                queue_ms = result.queue_time_ms,
+                "solved"
+            );
+            Ok(Json(result))
+        }
+        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(vec![field]), "invalid")),
+        Err(panic) => {
+            tracing::error!(panic = %panic.0, "solver panicked");
+            Err(reject(ApiError::Internal, "panic"))
+        }
+    }
+}
+
+fn reject(e: ApiError, reason: &'static str) -> ApiError {
+    ::metrics::counter!("solve_rejections_total", "reason" => reason).increment(1);
+    e
+}
+
+/// The default problem (the seed scenario), every field expanded: fetch it,
+/// edit it, post it back.
+#[utoipa::path(
+    get,
+    path = "/problems/default",
+    tag = "solve",
+    responses((status = 200, description = "The seed scenario", body = ProblemSpec))
+)]
+async fn default_problem() -> Json<ProblemSpec> {
+    Json(ProblemSpec::default())
+}
+
+/// Liveness or readiness answer.
+#[derive(Debug, Serialize, ToSchema)]
+pub struct Health {
+    /// `ok` or `ready`.
+    pub status: &'static str,
+}
+
+/// Liveness: 200 while the process serves HTTP.
+#[utoipa::path(
+    get,
+    path = "/healthz",
+    tag = "operations",
+    responses((status = 200, description = "Alive", body = Health))
+)]
+async fn healthz() -> Json<Health> {
+    Json(Health { status: "ok" })
+}
+
+/// Readiness: 200 while the service admits solves, 503 while it drains for
+/// shutdown.
+#[utoipa::path(
+    get,
+    path = "/readyz",
+    tag = "operations",
+    responses(
+        (status = 200, description = "Admitting solves", body = Health),
+        (status = 503, description = "Draining", body = Problem, content_type = "application/problem+json"),
+    )
+)]
+async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiError> {
+    if st.is_draining() {
+        Err(ApiError::ShuttingDown)
+    } else {
+        Ok(Json(Health { status: "ready" }))
+    }
+}
+
+/// Prometheus metrics in the text exposition format.
+#[utoipa::path(
+    get,
+    path = "/metrics",
+    tag = "operations",
+    responses((status = 200, description = "Prometheus text format", body = String, content_type = "text/plain"))
+)]
+async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
+    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
+    let body = metrics::handle().render();
+    (
+        [(
+            header::CONTENT_TYPE,
+            HeaderValue::from_static("text/plain; version=0.0.4"),
+        )],
+        body,
+    )
+        .into_response()
+}
+
+async fn not_found() -> ApiError {
+    ApiError::NotFound
+}
+
+async fn method_not_allowed() -> ApiError {
+    ApiError::MethodNotAllowed
+}

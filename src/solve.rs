@@ -1,0 +1,259 @@
+//! From a validated [`ProblemSpec`] to a [`SolveResult`]: builds the core
+//! problem (model, integrator, cost terms), runs the solver and turns its
+//! output into the wire format. Shared by the CLI and the service.
+
+use std::sync::atomic::AtomicBool;
+use std::time::Duration;
+
+use ilqr::{
+    ControlEffort, Euler, ExpObstacle, Objective, Options, Problem, Quadrotor2D, SolveError,
+    Solver, StateTracking, TerminalTracking,
+};
+use nalgebra::{SVector, Vector2};
+use serde::{Deserialize, Serialize};
+use utoipa::ToSchema;
+
+use crate::problem::{FieldError, Integrator, ModelKind, ProblemSpec};
+use crate::schema;
+
+/// How a solve ended. Every status is a successful answer carrying the best
+/// trajectory found.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum SolveStatus {
+    /// The relative cost change fell below `solver.tolerance`.
+    Converged,
+    /// `solver.max_iterations` ran out first.
+    MaxIterations,
+    /// The time budget ran out first.
+    TimeLimit,
+    /// The solve was cancelled (client gone, or service shutting down).
+    Cancelled,
+    /// Regularisation passed its maximum: no step could reduce the cost.
+    NoProgress,
+}
+
+impl SolveStatus {
+    /// The wire name, e.g. `max_iterations`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Converged => "converged",
+            Self::MaxIterations => "max_iterations",
+            Self::TimeLimit => "time_limit",
+            Self::Cancelled => "cancelled",
+            Self::NoProgress => "no_progress",
+        }
+    }
+}
+
+impl From<ilqr::Status> for SolveStatus {
+    fn from(s: ilqr::Status) -> Self {
+        match s {
+            ilqr::Status::Converged => Self::Converged,
+            ilqr::Status::MaxIterations => Self::MaxIterations,
+            ilqr::Status::TimeLimit => Self::TimeLimit,
+            ilqr::Status::Cancelled => Self::Cancelled,
+            ilqr::Status::NoProgress => Self::NoProgress,
+        }
+    }
+}
+
+/// The solution of a problem.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct SolveResult {
+    /// How the solve ended.
+    pub status: SolveStatus,
+    /// Final cost J (same units as the weights; no ½ factors).
+    pub cost: f64,
+    /// Cost of the initial guess.
+    pub initial_cost: f64,
+    /// Iterations performed.
+    pub iterations: usize,
+    /// Distance (m) of the final position from the goal position.
+    pub goal_distance: f64,
+    /// For each obstacle, the smallest distance (m) from its centre to any
+    /// state of the trajectory.
+    pub closest_approach: Vec<f64>,
+    /// The optimised states.
+    #[schema(schema_with = schema::states)]
+    pub states: Vec<[f64; 6]>,
+    /// The optimised controls.
+    #[schema(schema_with = schema::controls)]
+    pub controls: Vec<[f64; 2]>,
+    /// The time-varying feedback policy; absent when `output.gains` is false.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub gains: Option<Gains>,
+    /// One row per iteration; absent when `output.trace` is false.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub trace: Option<Vec<TraceEntry>>,
+    /// Time spent solving, in ms.
+    pub solve_time_ms: f64,
+    /// Time spent waiting for a worker, in ms (0 outside the service).
+    pub queue_time_ms: f64,
+}
+
+/// Feedback and feedforward gains along the trajectory.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Gains {
+    /// `K_k`, see the schema description.
+    #[schema(schema_with = schema::feedback)]
+    pub feedback: Vec<[[f64; 6]; 2]>,
+    /// `d_k`, see the schema description.
+    #[schema(schema_with = schema::feedforward)]
+    pub feedforward: Vec<[f64; 2]>,
+}
+
+/// One iteration of the solver.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct TraceEntry {
+    /// 1-based iteration number.
+    pub iteration: usize,
+    /// Cost after the iteration (unchanged when no step was accepted).
+    pub cost: f64,
+    /// Reduction the quadratic model predicted for the step.
+    pub expected_reduction: f64,
+    /// Reduction achieved (0 when no step was accepted).
+    pub actual_reduction: f64,
+    /// Line-search step size α accepted, 0 when none was.
+    pub step_size: f64,
+    /// Levenberg–Marquardt regularisation μ of the backward pass.
+    pub regularization: f64,
+    /// Mean over steps of `max_i |d_i| / (|u_i| + 1)`.
+    pub feedforward_norm: f64,
+    /// Time since the solve started, ms.
+    pub elapsed_ms: f64,
+}
+
+/// A problem that passed validation but cannot be solved as posed.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Unsolvable(pub FieldError);
+
+/// Solve a problem that [`ProblemSpec::validate`] accepted. `time_limit`
+/// applies when the problem sets none; `cancel` is polled every iteration.
+pub fn solve(
+    spec: &ProblemSpec,
+    time_limit: Option<Duration>,
+    cancel: &AtomicBool,
+) -> Result<SolveResult, Unsolvable> {
+    let ModelKind::Quadrotor2d = spec.model.kind;
+    let Integrator::Euler = spec.integrator;
+    let model = Quadrotor2D {
+        mass: spec.model.mass,
+        inertia: spec.model.inertia,
+        arm_length: spec.model.arm_length,
+        gravity: spec.model.gravity,
+    };
+    let goal = SVector::from(spec.goal_state);
+    let mut cost = Objective::new()
+        .stage(StateTracking {
+            goal,
+            weights: SVector::from(spec.weights.state),
+        })
+        .stage(ControlEffort {
+            weights: Vector2::from(spec.weights.control),
+        })
+        .terminal(TerminalTracking {
+            goal,
+            weights: SVector::from(spec.weights.terminal),
+        });
+    for o in &spec.obstacles {
+        cost = cost.stage(ExpObstacle {
+            center: Vector2::from(o.center),
+            weight: o.weight,
+            position: (0, 1),
+        });
+    }
+    let problem = Problem {
+        dynamics: Euler { model, dt: spec.dt },
+        cost,
+        x0: SVector::from(spec.initial_state),
+        horizon: spec.horizon,
+    };
+    let u_init: Vec<Vector2<f64>> = match &spec.initial_controls {
+        Some(us) => us.iter().map(|u| Vector2::from(*u)).collect(),
+        None => vec![Vector2::repeat(model.hover_thrust()); spec.horizon],
+    };
+    let options = Options {
+        max_iterations: spec.solver.max_iterations,
+        tolerance: spec.solver.tolerance,
+        time_limit: spec
+            .solver
+            .time_limit_ms
+            .map(Duration::from_millis)
+            .or(time_limit),
+        ..Options::default()
+    };
+
+    let mut solver = Solver::<6, 2>::new(spec.horizon);
+    let summary = solver
+        .solve(&problem, &u_init, &options, cancel)
+        .map_err(|e| Unsolvable(field_error(e, spec)))?;
+
+    let states: Vec<[f64; 6]> = solver.states().iter().map(|x| (*x).into()).collect();
+    let position = |x: &[f64; 6], c: [f64; 2]| (x[0] - c[0]).hypot(x[1] - c[1]);
+    let last = states.last().copied().unwrap_or(spec.initial_state);
+    let goal_distance = position(&last, [spec.goal_state[0], spec.goal_state[1]]);
+    let closest_approach = spec
+        .obstacles
+        .iter()
+        .map(|o| {
+            states
+                .iter()
+                .map(|x| position(x, o.center))
+                .fold(f64::INFINITY, f64::min)
+        })
+        .collect();
+    let gains = spec.output.gains.then(|| Gains {
+        feedback: solver
+            .feedback()
+            .iter()
+            .map(|k| [k.row(0).transpose().into(), k.row(1).transpose().into()])
+            .collect(),
+        feedforward: solver.feedforward().iter().map(|d| (*d).into()).collect(),
+    });
+    let trace = spec.output.trace.then(|| {
+        solver
+            .trace()
+            .iter()
+            .map(|r| TraceEntry {
+                iteration: r.iteration,
+                cost: r.cost,
+                expected_reduction: r.expected_reduction,
+                actual_reduction: r.actual_reduction,
+                step_size: r.step_size,
+                regularization: r.regularization,
+                feedforward_norm: r.feedforward_norm,
+                elapsed_ms: r.elapsed.as_secs_f64() * 1e3,
+            })
+            .collect()
+    });
+    Ok(SolveResult {
+        status: summary.status.into(),
+        cost: summary.cost,
+        initial_cost: summary.initial_cost,
+        iterations: summary.iterations,
+        goal_distance,
+        closest_approach,
+        states,
+        controls: solver.controls().iter().map(|u| (*u).into()).collect(),
+        gains,
+        trace,
+        solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
+        queue_time_ms: 0.0,
+    })
+}
+
+fn field_error(e: SolveError, spec: &ProblemSpec) -> FieldError {
+    let pointer = match e {
+        SolveError::EmptyHorizon => "/horizon",
+        SolveError::ControlsLength { .. } => "/initial_controls",
+        SolveError::InitialRolloutNotFinite { .. } if spec.initial_controls.is_some() => {
+            "/initial_controls"
+        }
+        SolveError::InitialRolloutNotFinite { .. } => "",
+    };
+    FieldError {
+        pointer: pointer.to_owned(),
+        detail: e.to_string(),
+    }
+}
