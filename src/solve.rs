@@ -145,19 +145,19 @@ pub fn solve(
     };
     let goal = SVector::from(spec.goal_state);
     let mut cost = Objective::new()
-        .stage(StateTracking {
+        .with_stage(StateTracking {
             goal,
             weights: SVector::from(spec.weights.state),
         })
-        .stage(ControlEffort {
+        .with_stage(ControlEffort {
             weights: Vector2::from(spec.weights.control),
         })
-        .terminal(TerminalTracking {
+        .with_terminal(TerminalTracking {
             goal,
             weights: SVector::from(spec.weights.terminal),
         });
     for o in &spec.obstacles {
-        cost = cost.stage(ExpObstacle {
+        cost = cost.with_stage(ExpObstacle {
             center: Vector2::from(o.center),
             weight: o.weight,
             position: (0, 1),

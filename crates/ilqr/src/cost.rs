@@ -125,14 +125,14 @@ impl<const NX: usize, const NU: usize> Objective<NX, NU> {
 
     /// Add a stage term.
     #[must_use]
-    pub fn stage(mut self, term: impl StageCost<NX, NU> + 'static) -> Self {
+    pub fn with_stage(mut self, term: impl StageCost<NX, NU> + 'static) -> Self {
         self.stage.push(Box::new(term));
         self
     }
 
     /// Add a terminal term.
     #[must_use]
-    pub fn terminal(mut self, term: impl TerminalCost<NX> + 'static) -> Self {
+    pub fn with_terminal(mut self, term: impl TerminalCost<NX> + 'static) -> Self {
         self.terminal.push(Box::new(term));
         self
     }
@@ -266,7 +266,7 @@ pub struct ExpObstacle {
 
 impl ExpObstacle {
     /// Distance floor (m) used by the derivatives near the centre.
-    pub const MIN_DISTANCE: f64 = 1e-6;
+    pub const MIN_DISTANCE: f64 = 1e-3;
 
     fn offset<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
         Vector2::new(

@@ -36,9 +36,9 @@
 //! let model = Quadrotor2D { mass: 1.0, inertia: 1.0, arm_length: 1.0, gravity: 9.81 };
 //! let goal = SVector::<f64, 6>::from([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
 //! let cost = Objective::new()
-//!     .stage(StateTracking { goal, weights: SVector::repeat(1.0) })
-//!     .stage(ControlEffort { weights: Vector2::repeat(0.1) })
-//!     .terminal(TerminalTracking { goal, weights: SVector::repeat(100.0) });
+//!     .with_stage(StateTracking { goal, weights: SVector::repeat(1.0) })
+//!     .with_stage(ControlEffort { weights: Vector2::repeat(0.1) })
+//!     .with_terminal(TerminalTracking { goal, weights: SVector::repeat(100.0) });
 //! let problem = Problem { dynamics: Euler { model, dt: 0.05 }, cost, x0: SVector::zeros(), horizon: 40 };
 //! let hover = vec![Vector2::repeat(9.81 / 2.0); 40];
 //!

@@ -30,19 +30,19 @@ pub const OBSTACLE: [f64; 2] = [4.5, 4.5];
 /// The seed problem with horizon `n` and step `dt`.
 pub fn seed_problem(n: usize, dt: f64) -> Seed {
     let cost = Objective::new()
-        .stage(StateTracking {
+        .with_stage(StateTracking {
             goal: goal(),
             weights: SVector::repeat(1.0),
         })
-        .stage(ControlEffort {
+        .with_stage(ControlEffort {
             weights: Vector2::repeat(0.1),
         })
-        .stage(ExpObstacle {
+        .with_stage(ExpObstacle {
             center: Vector2::from(OBSTACLE),
             weight: 1000.0,
             position: (0, 1),
         })
-        .terminal(TerminalTracking {
+        .with_terminal(TerminalTracking {
             goal: goal(),
             weights: SVector::repeat(50000.0),
         });
