@@ -76,10 +76,12 @@ EXPOSE 8080
 USER 65532:65532
 
 # There is no shell or curl in distroless, so the health check is the binary
-# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1 on the
-# port taken from ILQR_BIND and exits 0/1. Exec form, because shell form would
-# need /bin/sh. (Kubernetes ignores HEALTHCHECK and uses the probes in
-# deploy/k8s/deployment.yaml instead; this is for docker / compose.)
+# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1:8080
+# (the port in ILQR_BIND above) and exits 0/1. If you move the service to
+# another port, point the check there too (`ilqr-service healthcheck --help`).
+# Exec form, because shell form would need /bin/sh. Kubernetes ignores
+# HEALTHCHECK and uses the probes in deploy/k8s/deployment.yaml; this one is
+# for docker / compose.
 HEALTHCHECK --interval=10s --timeout=3s --start-period=5s --retries=3 \
     CMD ["/usr/local/bin/ilqr-service", "healthcheck"]
 

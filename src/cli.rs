@@ -37,9 +37,10 @@ enum Command {
     /// Exit 0 if the service on this machine answers `GET /healthz` with 200
     /// (for container health checks, which have no curl).
     Healthcheck {
-        /// Address of the service.
-        #[arg(long, env = "ILQR_HEALTHCHECK_ADDR", default_value = "127.0.0.1:8080")]
-        addr: String,
+        /// Address of the service. Default: 127.0.0.1 at the port of
+        /// `ILQR_BIND` (8080 when unset), so it follows the server's setting.
+        #[arg(long, env = "ILQR_HEALTHCHECK_ADDR")]
+        addr: Option<String>,
     },
 }
 
@@ -55,14 +56,25 @@ pub fn main() -> ExitCode {
             println!("{}", server::openapi_json());
             ExitCode::SUCCESS
         }
-        Some(Command::Healthcheck { addr }) => match server::healthcheck(&addr) {
-            Ok(()) => ExitCode::SUCCESS,
-            Err(e) => {
-                eprintln!("unhealthy: {e}");
-                ExitCode::FAILURE
+        Some(Command::Healthcheck { addr }) => {
+            match server::healthcheck(&addr.unwrap_or_else(local_addr)) {
+                Ok(()) => ExitCode::SUCCESS,
+                Err(e) => {
+                    eprintln!("unhealthy: {e}");
+                    ExitCode::FAILURE
+                }
             }
-        },
+        }
     }
+}
+
+/// `127.0.0.1:<port of ILQR_BIND>`.
+fn local_addr() -> String {
+    let port = std::env::var("ILQR_BIND")
+        .ok()
+        .and_then(|b| b.parse::<std::net::SocketAddr>().ok())
+        .map_or(8080, |a| a.port());
+    format!("127.0.0.1:{port}")
 }
 
 fn serve(config: Config) -> ExitCode {

@@ -60,6 +60,7 @@ pub struct ProblemSpec {
     pub obstacles: Vec<Obstacle>,
     /// Initial guess for the controls: N rows of `[u1, u2]` in N. Default:
     /// hover thrust `m·g/2` on both rotors.
+    #[serde(skip_serializing_if = "Option::is_none")]
     #[schema(schema_with = schema::rows_of_2)]
     pub initial_controls: Option<Vec<[f64; 2]>>,
     /// Termination settings.
@@ -434,33 +435,27 @@ pub enum ParseError {
 }
 
 /// Parse a problem document, locating shape errors with a JSON pointer.
+///
+/// Two stages, so the two kinds of failure stay apart: the bytes must be one
+/// JSON value (else [`ParseError::Syntax`]; this includes numbers beyond the
+/// range of f64 such as `1e999`), and that value must be an object of the
+/// right shape (else [`ParseError::Shape`]).
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
-    let de = &mut serde_json::Deserializer::from_slice(bytes);
-    match serde_path_to_error::deserialize::<_, ProblemSpec>(de) {
-        Ok(spec) => {
-            // Trailing garbage after the document is a syntax error too.
-            let mut de =
-                serde_json::Deserializer::from_slice(bytes).into_iter::<serde_json::Value>();
-            let _ = de.next();
-            if de.next().is_some() {
-                return Err(ParseError::Syntax(
-                    "unexpected data after the JSON document".into(),
-                ));
-            }
-            Ok(spec)
-        }
-        Err(e) => {
-            let pointer = pointer_of(e.path());
-            let inner = e.into_inner();
-            match inner.classify() {
-                serde_json::error::Category::Data => Err(ParseError::Shape(FieldError {
-                    pointer,
-                    detail: strip_position(&inner.to_string()),
-                })),
-                _ => Err(ParseError::Syntax(inner.to_string())),
-            }
-        }
+    let value: serde_json::Value =
+        serde_json::from_slice(bytes).map_err(|e| ParseError::Syntax(e.to_string()))?;
+    if !value.is_object() {
+        // serde would accept an array for a struct; a problem is an object.
+        return Err(ParseError::Shape(FieldError {
+            pointer: String::new(),
+            detail: "expected a JSON object (a problem document)".into(),
+        }));
     }
+    serde_path_to_error::deserialize::<_, ProblemSpec>(value).map_err(|e| {
+        ParseError::Shape(FieldError {
+            pointer: pointer_of(e.path()),
+            detail: e.into_inner().to_string(),
+        })
+    })
 }
 
 /// RFC 6901 pointer of a serde path (`weights.state[2]` → `/weights/state/2`).
@@ -478,12 +473,4 @@ fn pointer_of(path: &serde_path_to_error::Path) -> String {
         }
     }
     out
-}
-
-/// serde_json appends " at line 1 column 20"; the pointer says it better.
-fn strip_position(msg: &str) -> String {
-    match msg.rfind(" at line ") {
-        Some(i) => msg[..i].to_owned(),
-        None => msg.to_owned(),
-    }
 }

@@ -118,7 +118,8 @@ impl ApiError {
                 (detail, errors.clone(), None)
             }
             Self::UnsupportedMediaType => (
-                "send the problem as JSON with `Content-Type: application/json`".into(),
+                "send the problem as uncompressed JSON with `Content-Type: application/json`"
+                    .into(),
                 vec![],
                 None,
             ),

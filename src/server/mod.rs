@@ -125,6 +125,7 @@ pub struct AppState {
 impl AppState {
     /// State for `config`, starting the solver pool.
     pub fn new(config: Config) -> std::io::Result<Arc<Self>> {
+        metrics::handle(); // install the recorder before anything records
         let pool = Pool::new(config.workers(), config.queue_capacity)?;
         Ok(Arc::new(Self {
             config,
@@ -255,7 +256,9 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(async move {
-        let listener = TcpListener::bind(config.bind).await?;
+        let listener = TcpListener::bind(config.bind).await.map_err(|e| {
+            std::io::Error::new(e.kind(), format!("cannot listen on {}: {e}", config.bind))
+        })?;
         tracing::info!(
             addr = %listener.local_addr()?,
             workers = config.workers(),

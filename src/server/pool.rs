@@ -5,9 +5,12 @@
 //! threads, and rayon aborts the process when a job panics unless a handler
 //! is installed; a small pool of our own states its limits plainly:
 //!
-//! * `workers` threads take jobs from one FIFO queue of `capacity` slots;
+//! * `workers` threads take jobs from one FIFO queue; at most
+//!   `workers + capacity` jobs are admitted at once (running or waiting);
 //! * [`Pool::submit`] never waits: when every slot is taken it returns
-//!   [`Full`] at once, and the HTTP layer answers 503;
+//!   [`Full`] at once, and the HTTP layer answers 503. Slots are counted
+//!   with an atomic, not by the channel, so the answer does not depend on
+//!   whether a worker happens to be parked in `recv` at that instant;
 //! * a job whose caller has gone away before it starts (its result receiver
 //!   was dropped) is skipped;
 //! * a panicking job is caught with `catch_unwind` and reported to its caller
@@ -15,7 +18,7 @@
 
 use std::panic::{AssertUnwindSafe, catch_unwind};
 use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc::{Receiver, SyncSender, TrySendError, sync_channel};
+use std::sync::mpsc::{Receiver, Sender, channel};
 use std::sync::{Arc, Mutex};
 use std::time::{Duration, Instant};
 
@@ -42,8 +45,12 @@ pub struct Done<T> {
 
 /// A fixed pool of worker threads with a bounded queue.
 pub struct Pool {
-    tx: SyncSender<Job>,
+    tx: Sender<Job>,
+    /// Jobs submitted and not yet started.
     queued: Arc<AtomicUsize>,
+    /// Free admission slots: `workers + capacity` minus jobs admitted and
+    /// not yet finished.
+    free: Arc<AtomicUsize>,
     workers: usize,
     capacity: usize,
 }
@@ -54,7 +61,7 @@ impl Pool {
     /// drains.
     pub fn new(workers: usize, capacity: usize) -> std::io::Result<Self> {
         let workers = workers.max(1);
-        let (tx, rx) = sync_channel::<Job>(capacity);
+        let (tx, rx) = channel::<Job>();
         let rx = Arc::new(Mutex::new(rx));
         for i in 0..workers {
             let rx = Arc::clone(&rx);
@@ -65,6 +72,7 @@ impl Pool {
         Ok(Self {
             tx,
             queued: Arc::new(AtomicUsize::new(0)),
+            free: Arc::new(AtomicUsize::new(workers + capacity)),
             workers,
             capacity,
         })
@@ -77,10 +85,16 @@ impl Pool {
         T: Send + 'static,
         F: FnOnce() -> T + Send + 'static,
     {
+        // Take a slot or fail at once.
+        self.free
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
+            .map_err(|_| Full)?;
         let (done_tx, done_rx) = oneshot::channel();
         let queued = Arc::clone(&self.queued);
+        let slot = SlotGuard(Arc::clone(&self.free));
         let submitted = Instant::now();
         let job: Job = Box::new(move || {
+            let _slot = slot; // freed when the job ends, panic or not
             queued.fetch_sub(1, Ordering::Relaxed);
             if done_tx.is_closed() {
                 return; // the caller left while we were queued
@@ -94,13 +108,13 @@ impl Pool {
             });
         });
         self.queued.fetch_add(1, Ordering::Relaxed);
-        match self.tx.try_send(job) {
-            Ok(()) => Ok(done_rx),
-            Err(TrySendError::Full(_) | TrySendError::Disconnected(_)) => {
-                self.queued.fetch_sub(1, Ordering::Relaxed);
-                Err(Full)
-            }
-        }
+        // Sending fails only if every worker thread is gone; the job (and
+        // its slot) is dropped with the error.
+        self.tx.send(job).map_err(|_| {
+            self.queued.fetch_sub(1, Ordering::Relaxed);
+            Full
+        })?;
+        Ok(done_rx)
     }
 
     /// Jobs waiting for a worker.
@@ -116,6 +130,15 @@ impl Pool {
     /// Queue capacity.
     pub fn capacity(&self) -> usize {
         self.capacity
+    }
+}
+
+/// Returns its admission slot when dropped.
+struct SlotGuard(Arc<AtomicUsize>);
+
+impl Drop for SlotGuard {
+    fn drop(&mut self) {
+        self.0.fetch_add(1, Ordering::AcqRel);
     }
 }
 

@@ -13,7 +13,7 @@ use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::compression::CompressionLayer;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
-use tower_http::trace::TraceLayer;
+use tower_http::trace::{DefaultOnFailure, TraceLayer};
 use utoipa::{OpenApi, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -76,7 +76,11 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
         ServiceBuilder::new()
             .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
             .layer(
-                TraceLayer::new_for_http().make_span_with(|req: &Request| {
+                TraceLayer::new_for_http()
+                    // A 503 under overload is back-pressure working, not a
+                    // failure of this process: warn, don't error.
+                    .on_failure(DefaultOnFailure::new().level(tracing::Level::WARN))
+                    .make_span_with(|req: &Request| {
                     let id = req
                         .headers()
                         .get("x-request-id")
@@ -95,14 +99,18 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
 /// maps every failure to a problem document with a pointer.
 pub struct ProblemJson(pub ProblemSpec);
 
-impl<S: Send + Sync> FromRequest<S> for ProblemJson {
+impl FromRequest<Arc<AppState>> for ProblemJson {
     type Rejection = ApiError;
 
-    async fn from_request(req: Request, state: &S) -> Result<Self, Self::Rejection> {
-        if !is_json(req.headers()) {
+    async fn from_request(req: Request, state: &Arc<AppState>) -> Result<Self, Self::Rejection> {
+        let encoded = req
+            .headers()
+            .get(header::CONTENT_ENCODING)
+            .is_some_and(|v| v.as_bytes() != b"identity");
+        if encoded || !is_json(req.headers()) {
             return Err(ApiError::UnsupportedMediaType);
         }
-        let limit = req.extensions().get::<BodyLimit>().map_or(0, |l| l.0);
+        let limit = state.config.max_body_bytes;
         let bytes = Bytes::from_request(req, state).await.map_err(|rej| {
             if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
                 ApiError::PayloadTooLarge(limit)
@@ -117,10 +125,6 @@ impl<S: Send + Sync> FromRequest<S> for ProblemJson {
         }
     }
 }
-
-/// The configured body limit, for the 413 message.
-#[derive(Clone, Copy)]
-struct BodyLimit(usize);
 
 fn is_json(headers: &HeaderMap) -> bool {
     let Some(ct) = headers
@@ -173,10 +177,30 @@ async fn solve(
 
     let guard = st.admit();
     let cancel = Arc::clone(&guard.flag);
+    // The request span (and its request_id) follows the solve to the worker.
+    let span = tracing::Span::current();
     let default_limit = Duration::from_millis(st.config.default_time_limit_ms);
     let rx = st
         .pool
-        .submit(move || run_solve(&spec, Some(default_limit), &cancel))
+        .submit(move || {
+            let _entered = span.enter();
+            let out = run_solve(&spec, Some(default_limit), &cancel);
+            // Recorded here, not in the handler, so solves whose client left
+            // are counted too.
+            if let Ok(r) = &out {
+                ::metrics::counter!("solves_total", "status" => r.status.as_str()).increment(1);
+                ::metrics::histogram!("solve_duration_seconds").record(r.solve_time_ms / 1e3);
+                ::metrics::histogram!("solve_iterations").record(r.iterations as f64);
+                tracing::info!(
+                    status = r.status.as_str(),
+                    iterations = r.iterations,
+                    cost = r.cost,
+                    solve_ms = r.solve_time_ms,
+                    "solve finished"
+                );
+            }
+            out
+        })
         .map_err(|_| {
             reject(
                 ApiError::Overloaded {
@@ -196,17 +220,6 @@ async fn solve(
     match done.outcome {
         Ok(Ok(mut result)) => {
             result.queue_time_ms = done.queued.as_secs_f64() * 1e3;
-            ::metrics::counter!("solves_total", "status" => result.status.as_str()).increment(1);
-            ::metrics::histogram!("solve_duration_seconds").record(result.solve_time_ms / 1e3);
-            ::metrics::histogram!("solve_iterations").record(result.iterations as f64);
-            tracing::info!(
-                status = result.status.as_str(),
-                iterations = result.iterations,
-                cost = result.cost,
-                solve_ms = result.solve_time_ms,
-                queue_ms = result.queue_time_ms,
-                "solved"
-            );
             Ok(Json(result))
         }
         Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(vec![field]), "invalid")),

@@ -19,7 +19,7 @@ import email.utils
 import json
 import time
 from dataclasses import dataclass
-from typing import Any, Dict, List, Mapping, Optional, Sequence, Type
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type
 
 import requests
 
@@ -104,7 +104,15 @@ class ApiError(Exception):
         self.request_id = request_id
         self.retry_after = retry_after
         self.body = body
-        super().__init__(self._message())
+        super().__init__(status, title, detail)
+
+    def __str__(self) -> str:
+        return self._message()
+
+    def __reduce__(self) -> Tuple[Any, ...]:
+        # Rebuild from the attributes so that errors survive pickling
+        # (multiprocessing, concurrent.futures) with everything they carry.
+        return (type(self), (self.status, self.title, self.detail), dict(self.__dict__))
 
     @property
     def slug(self) -> Optional[str]:

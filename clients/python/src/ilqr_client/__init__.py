@@ -1,0 +1,76 @@
+"""Python client for ilqr-service, a 2-D quadrotor trajectory optimiser (iLQR) over HTTP.
+
+Quick start::
+
+    from ilqr_client import Client, ValidationError
+
+    with Client("http://127.0.0.1:8080") as client:
+        result = client.solve({"horizon": 80, "goal_state": [3, 8, 0, 0, 0, 0]})
+        print(result.status, result.cost, len(result.states))
+
+Modules:
+
+* :mod:`ilqr_client.client`: :class:`Client` and its retry policy.
+* :mod:`ilqr_client.models`: typed problem (request) and result (response) dataclasses.
+* :mod:`ilqr_client.errors`: the :class:`ApiError` hierarchy for problem+json answers.
+* :mod:`ilqr_client.plot`: matplotlib helpers (needs the ``plot`` extra).
+"""
+
+from ._version import __version__
+from .client import Client, ProblemLike
+from .errors import (
+    ApiError,
+    FieldError,
+    MalformedRequestError,
+    MethodNotAllowedError,
+    NotFoundError,
+    OverloadedError,
+    PayloadTooLargeError,
+    ServerError,
+    ShuttingDownError,
+    UnexpectedResponseError,
+    UnsupportedMediaTypeError,
+    ValidationError,
+)
+from .models import (
+    SOLVE_STATUSES,
+    Gains,
+    Obstacle,
+    OutputOptions,
+    Problem,
+    QuadrotorModel,
+    SolveResult,
+    SolverOptions,
+    TraceEntry,
+    Weights,
+)
+
+__all__ = [
+    "__version__",
+    "Client",
+    "ProblemLike",
+    # models
+    "SOLVE_STATUSES",
+    "Problem",
+    "QuadrotorModel",
+    "Weights",
+    "Obstacle",
+    "SolverOptions",
+    "OutputOptions",
+    "SolveResult",
+    "Gains",
+    "TraceEntry",
+    # errors
+    "ApiError",
+    "FieldError",
+    "MalformedRequestError",
+    "ValidationError",
+    "UnsupportedMediaTypeError",
+    "PayloadTooLargeError",
+    "NotFoundError",
+    "MethodNotAllowedError",
+    "OverloadedError",
+    "ShuttingDownError",
+    "ServerError",
+    "UnexpectedResponseError",
+]

@@ -1,0 +1,328 @@
+"""HTTP client for ilqr-service.
+
+:class:`Client` wraps one :class:`requests.Session` and exposes the API as
+typed methods: :meth:`Client.solve`, :meth:`Client.default_problem`,
+:meth:`Client.health` and :meth:`Client.ready`.
+
+Retry policy (for ``solve`` and ``default_problem``; ``retries`` extra
+attempts at most, shared by both kinds of failure):
+
+* 503 ``overloaded``: sleep for the answer's ``Retry-After`` (capped at
+  ``max_retry_wait``, plus up to 10 % random jitter so that many clients do
+  not come back in lockstep), then try again. When the retries are used up
+  the :class:`~ilqr_client.errors.OverloadedError` is raised.
+* Connection failures (:class:`requests.ConnectionError`: refused, reset,
+  connect timeout): exponential backoff ``backoff · 2^attempt`` (capped at
+  ``max_retry_wait``), then try again; the last exception is re-raised.
+  Solving has no side effects, so repeating a POST is safe.
+* Nothing else is retried: not 4xx answers (the same request would fail the
+  same way), not 503 ``shutting-down`` (this instance is going away), not 500,
+  and not read timeouts (the service abandons a solve whose client has gone,
+  and the same solve would most likely run out of time again: raise the
+  timeout instead).
+
+Progress is logged on the ``ilqr_client.client`` logger (a WARNING per retry).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import random
+import time
+from types import TracebackType
+from typing import Any, Dict, Mapping, Optional, Tuple, Type, Union, cast
+
+import requests
+
+from ._version import __version__
+from .errors import OverloadedError, UnexpectedResponseError, error_from_response
+from .models import Problem, SolveResult, to_json_value
+
+__all__ = ["Client", "ProblemLike", "TimeoutSpec"]
+
+logger = logging.getLogger(__name__)
+
+#: What :meth:`Client.solve` accepts: a :class:`Problem`, a JSON-like mapping, or ``None`` for ``{}``.
+ProblemLike = Union[Problem, Mapping[str, Any], None]
+#: A requests timeout: seconds for connect and read alike, or ``(connect, read)``.
+TimeoutSpec = Union[float, Tuple[float, float]]
+
+_JSON = "application/json"
+
+
+class Client:
+    """A client for one ilqr-service instance.
+
+    Reuses one HTTP session (connection pool) across calls. Use it as a
+    context manager, or call :meth:`close`, to release the connections::
+
+        with Client("http://127.0.0.1:8080") as client:
+            result = client.solve({"horizon": 50})
+
+    Args:
+        base_url: The service's root URL; a path prefix (behind a proxy) is kept.
+        timeout: Per-request timeout in seconds, or ``(connect, read)``. A
+            solve can legitimately take as long as its time budget (the
+            service's default is 10 s, the maximum 60 s), so keep the read
+            timeout above the ``solver.time_limit_ms`` you send; ``solve``
+            accepts a per-call override.
+        retries: Extra attempts after an overload (503 with Retry-After) or a
+            connection failure; 0 disables retrying. See the module docs.
+        session: A :class:`requests.Session` to use (for custom adapters,
+            proxies, auth...). The client does not close a session it did not
+            create.
+        backoff: First delay in seconds of the exponential backoff after a
+            connection failure (and after an overload answer that carries no
+            Retry-After).
+        max_retry_wait: Upper bound in seconds on any single wait, whatever
+            Retry-After says.
+
+    Raises:
+        ValueError: for a negative ``retries``, ``backoff`` or ``max_retry_wait``.
+
+    A :class:`requests.Session` is not guaranteed to be thread-safe: give each
+    thread its own client (they are cheap) rather than sharing one.
+    """
+
+    def __init__(
+        self,
+        base_url: str = "http://127.0.0.1:8080",
+        timeout: Optional[TimeoutSpec] = 30.0,
+        retries: int = 3,
+        session: Optional[requests.Session] = None,
+        *,
+        backoff: float = 0.5,
+        max_retry_wait: float = 30.0,
+    ) -> None:
+        if retries < 0:
+            raise ValueError(f"retries must be >= 0, got {retries}")
+        if backoff < 0 or max_retry_wait < 0:
+            raise ValueError("backoff and max_retry_wait must be >= 0")
+        self.base_url = base_url.rstrip("/")
+        self.timeout = timeout
+        self.retries = retries
+        self.backoff = backoff
+        self.max_retry_wait = max_retry_wait
+        self._owns_session = session is None
+        self.session = session if session is not None else requests.Session()
+        if self._owns_session:
+            self.session.headers["User-Agent"] = (
+                f"ilqr-client-python/{__version__} {requests.utils.default_user_agent()}"
+            )
+
+    # ------------------------------------------------------------------ #
+    # Lifecycle
+    # ------------------------------------------------------------------ #
+
+    def close(self) -> None:
+        """Close the HTTP session, if this client created it."""
+        if self._owns_session:
+            self.session.close()
+
+    def __enter__(self) -> "Client":
+        return self
+
+    def __exit__(
+        self,
+        exc_type: Optional[Type[BaseException]],
+        exc: Optional[BaseException],
+        traceback: Optional[TracebackType],
+    ) -> None:
+        self.close()
+
+    def __repr__(self) -> str:
+        return f"Client(base_url={self.base_url!r}, timeout={self.timeout!r}, retries={self.retries!r})"
+
+    # ------------------------------------------------------------------ #
+    # API
+    # ------------------------------------------------------------------ #
+
+    def solve(
+        self,
+        problem: ProblemLike = None,
+        *,
+        timeout: Optional[TimeoutSpec] = None,
+        request_id: Optional[str] = None,
+    ) -> SolveResult:
+        """Solve a trajectory-optimisation problem (``POST /solve``).
+
+        Args:
+            problem: A :class:`Problem`, a JSON-like mapping (lists, tuples and
+                numpy arrays are all fine as values), or ``None`` for ``{}``,
+                the seed scenario. Omitted fields take the service's defaults.
+            timeout: Overrides the client's timeout for this call.
+            request_id: Sent as ``x-request-id``; the service logs it and
+                echoes it (also on errors), which helps correlate logs.
+
+        Returns:
+            The parsed answer. How the solve ended is ``result.status``; every
+            status carries the best trajectory found.
+
+        Raises:
+            ValidationError: the problem is invalid (``.pointers`` says where).
+            OverloadedError: still overloaded after ``retries`` retries.
+            ShuttingDownError: the instance is draining for shutdown.
+            ApiError: any other error answer (see :mod:`ilqr_client.errors`).
+            requests.RequestException: transport failures (after retries for
+                connection errors).
+            TypeError, ValueError: the problem cannot be encoded as JSON
+                (e.g. it contains NaN or infinity).
+        """
+        try:
+            body = json.dumps(self._problem_body(problem), allow_nan=False, separators=(",", ":"))
+        except ValueError as exc:
+            raise ValueError(f"the problem cannot be sent as JSON (NaN or infinity?): {exc}") from exc
+        headers = {"Content-Type": _JSON}
+        if request_id is not None:
+            headers["x-request-id"] = request_id
+        response = self._request("POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout)
+        data = self._json(response)
+        try:
+            return SolveResult.from_dict(data, request_id=response.headers.get("x-request-id"))
+        except (ValueError, TypeError) as exc:
+            raise self._unexpected(response, f"malformed solve result: {exc}") from exc
+
+    def default_problem(self) -> Problem:
+        """Fetch the seed scenario with every field expanded (``GET /problems/default``).
+
+        Edit it and pass it to :meth:`solve`; ``problem.to_dict()`` gives the
+        JSON document.
+
+        Raises:
+            ApiError: for an error answer.
+            requests.RequestException: transport failures.
+        """
+        response = self._request("GET", "/problems/default")
+        data = self._json(response)
+        try:
+            return Problem.from_dict(data)
+        except (ValueError, TypeError) as exc:
+            raise self._unexpected(response, f"malformed problem document: {exc}") from exc
+
+    def health(self) -> bool:
+        """Liveness (``GET /healthz``): ``True`` iff the service answers 200.
+
+        A single attempt; any other status or a transport failure gives
+        ``False`` rather than an exception.
+        """
+        return self._probe("/healthz")
+
+    def ready(self) -> bool:
+        """Readiness (``GET /readyz``): ``True`` iff the service admits solves.
+
+        ``False`` while it drains for shutdown (503), for any other non-200
+        status and when it cannot be reached. A single attempt.
+        """
+        return self._probe("/readyz")
+
+    # ------------------------------------------------------------------ #
+    # Internals
+    # ------------------------------------------------------------------ #
+
+    def _url(self, path: str) -> str:
+        return f"{self.base_url}{path}"
+
+    @staticmethod
+    def _problem_body(problem: ProblemLike) -> Dict[str, Any]:
+        """The JSON object to post for ``problem``."""
+        if problem is None:
+            return {}
+        if isinstance(problem, Problem):
+            return problem.to_dict()
+        if isinstance(problem, Mapping):
+            return cast(Dict[str, Any], to_json_value(problem))
+        raise TypeError(f"problem must be a Problem, a mapping or None, not {type(problem).__name__}")
+
+    def _probe(self, path: str) -> bool:
+        try:
+            response = self.session.get(self._url(path), timeout=self.timeout)
+        except requests.RequestException as exc:
+            logger.debug("GET %s failed: %s", path, exc)
+            return False
+        with response:
+            return response.status_code == 200
+
+    def _request(
+        self,
+        method: str,
+        path: str,
+        *,
+        data: Optional[bytes] = None,
+        headers: Optional[Dict[str, str]] = None,
+        timeout: Optional[TimeoutSpec] = None,
+    ) -> requests.Response:
+        """Send a request, retrying overloads and connection failures (see the module docs).
+
+        Returns:
+            A response with a status below 400.
+
+        Raises:
+            ApiError: the error answer, once retrying is over or not allowed.
+            requests.RequestException: the last transport failure.
+        """
+        url = self._url(path)
+        all_headers = {"Accept": f"{_JSON}, application/problem+json"}
+        all_headers.update(headers or {})
+        effective_timeout = self.timeout if timeout is None else timeout
+        attempt = 0
+        while True:
+            try:
+                response = self.session.request(
+                    method, url, data=data, headers=all_headers, timeout=effective_timeout
+                )
+            except requests.exceptions.SSLError:
+                raise  # a certificate problem does not go away by retrying
+            except requests.ConnectionError as exc:
+                if attempt >= self.retries:
+                    raise
+                wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                logger.warning(
+                    "%s %s: connection failed (%s); retry %d/%d in %.2f s",
+                    method, path, exc, attempt + 1, self.retries, wait,
+                )
+            else:
+                if response.status_code < 400:
+                    return response
+                error = error_from_response(response)
+                response.close()
+                if not isinstance(error, OverloadedError) or attempt >= self.retries:
+                    raise error
+                if error.retry_after is not None:
+                    wait = self._jitter(min(max(error.retry_after, 0.1), self.max_retry_wait))
+                    reason = f"Retry-After {error.retry_after:g} s"
+                else:
+                    wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                    reason = "no Retry-After"
+                logger.warning(
+                    "%s %s: service overloaded (%s); retry %d/%d in %.2f s [request id %s]",
+                    method, path, reason, attempt + 1, self.retries, wait, error.request_id,
+                )
+            self._sleep(wait)
+            attempt += 1
+
+    @staticmethod
+    def _jitter(wait: float) -> float:
+        """Add up to 10 % random extra wait (never less than ``wait``)."""
+        return wait + random.uniform(0.0, 0.1 * wait)
+
+    @staticmethod
+    def _sleep(seconds: float) -> None:
+        """Wait between attempts (a separate method so tests can observe it)."""
+        time.sleep(seconds)
+
+    def _json(self, response: requests.Response) -> Any:
+        """The body of a successful answer as JSON."""
+        try:
+            return response.json()
+        except ValueError as exc:
+            raise self._unexpected(response, f"the body is not JSON: {response.text[:200]!r}") from exc
+
+    @staticmethod
+    def _unexpected(response: requests.Response, detail: str) -> UnexpectedResponseError:
+        return UnexpectedResponseError(
+            response.status_code,
+            "Unexpected response",
+            detail,
+            request_id=response.headers.get("x-request-id"),
+        )

@@ -1,0 +1,581 @@
+"""Typed request and response models of the ilqr-service API.
+
+Requests
+    :class:`Problem` and its parts (:class:`QuadrotorModel`, :class:`Weights`,
+    :class:`Obstacle`, :class:`SolverOptions`, :class:`OutputOptions`) are
+    mutable dataclasses meant to be built and edited. A field left ``None`` is
+    left out of the request, so the service fills in its default (the seed
+    scenario). ``extra`` keeps members this client version does not know, so a
+    problem fetched from a newer service posts back unchanged.
+
+Responses
+    :class:`SolveResult`, :class:`Gains` and :class:`TraceEntry` are frozen
+    dataclasses parsed from the JSON answer. Arrays are plain nested lists of
+    floats; ``as_numpy()`` converts them when numpy is installed (it is not a
+    dependency).
+
+Only the shape of responses is checked here; the service validates problems.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple
+
+if TYPE_CHECKING:  # pragma: no cover
+    import numpy
+
+__all__ = [
+    "SOLVE_STATUSES",
+    "QuadrotorModel",
+    "Weights",
+    "Obstacle",
+    "SolverOptions",
+    "OutputOptions",
+    "Problem",
+    "TraceEntry",
+    "Gains",
+    "SolveResult",
+    "to_json_value",
+]
+
+#: Every ``status`` a 200 answer may carry. Each one comes with the best trajectory found.
+SOLVE_STATUSES = ("converged", "max_iterations", "time_limit", "cancelled", "no_progress")
+
+#: Number of state components: x, y, θ, ẋ, ẏ, θ̇.
+STATE_DIM = 6
+#: Number of controls: the two rotor thrusts u1, u2.
+CONTROL_DIM = 2
+
+
+# --------------------------------------------------------------------------- #
+# JSON conversion helpers
+# --------------------------------------------------------------------------- #
+
+
+def to_json_value(value: Any) -> Any:
+    """Convert a problem value to plain JSON types.
+
+    Handles the request dataclasses (via ``to_dict``), mappings, sequences
+    (tuples become lists) and numpy arrays and scalars (via ``tolist``).
+
+    Raises:
+        TypeError: for values that have no JSON form.
+    """
+    if value is None or isinstance(value, (bool, int, float, str)):
+        return value
+    to_dict = getattr(value, "to_dict", None)
+    if callable(to_dict):
+        return to_dict()
+    tolist = getattr(value, "tolist", None)
+    if callable(tolist):  # numpy arrays and numpy scalars
+        return tolist()
+    if isinstance(value, Mapping):
+        return {str(key): to_json_value(item) for key, item in value.items()}
+    if isinstance(value, (list, tuple)) or (
+        isinstance(value, Sequence) and not isinstance(value, (bytes, bytearray))
+    ):
+        return [to_json_value(item) for item in value]
+    raise TypeError(f"cannot send a {type(value).__name__} as JSON: {value!r}")
+
+
+def _spec_to_dict(spec: Any) -> Dict[str, Any]:
+    """Serialise a request dataclass: known fields that are not ``None``, then ``extra``."""
+    out: Dict[str, Any] = {}
+    for f in fields(spec):
+        if f.name == "extra":
+            continue
+        value = getattr(spec, f.name)
+        if value is not None:
+            out[f.name] = to_json_value(value)
+    for key, value in spec.extra.items():
+        out.setdefault(key, to_json_value(value))
+    return out
+
+
+def _split_known(cls: Any, data: Mapping[str, Any], what: str) -> Tuple[Dict[str, Any], Dict[str, Any]]:
+    """Split a JSON object into the members ``cls`` declares and the rest."""
+    if not isinstance(data, Mapping):
+        raise TypeError(f"{what}: expected an object, got {type(data).__name__}")
+    names = {f.name for f in fields(cls)} - {"extra"}
+    known = {key: value for key, value in data.items() if key in names}
+    extra = {key: value for key, value in data.items() if key not in names}
+    return known, extra
+
+
+def _float(value: Any, where: str) -> float:
+    """A JSON number as float (ints accepted, booleans and strings rejected)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {value!r}")
+    return float(value)
+
+
+def _int(value: Any, where: str) -> int:
+    """A JSON integer as int."""
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise ValueError(f"{where}: expected an integer, got {value!r}")
+    return value
+
+
+def _list(value: Any, where: str) -> List[Any]:
+    if not isinstance(value, list):
+        raise ValueError(f"{where}: expected an array, got {type(value).__name__}")
+    return value
+
+
+def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]:
+    items = _list(value, where)
+    if length is not None and len(items) != length:
+        raise ValueError(f"{where}: expected {length} numbers, got {len(items)}")
+    return [_float(item, f"{where}/{i}") for i, item in enumerate(items)]
+
+
+def _matrix(value: Any, where: str, columns: Optional[int] = None) -> List[List[float]]:
+    return [_vector(row, f"{where}/{i}", columns) for i, row in enumerate(_list(value, where))]
+
+
+def _require(data: Mapping[str, Any], key: str, where: str) -> Any:
+    if key not in data:
+        raise ValueError(f"{where}: missing member {key!r}")
+    return data[key]
+
+
+def _numpy() -> Any:
+    """Import numpy on first use, with a helpful message when it is missing."""
+    try:
+        import numpy
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError("as_numpy() needs numpy: pip install numpy") from exc
+    return numpy
+
+
+# --------------------------------------------------------------------------- #
+# Request models
+# --------------------------------------------------------------------------- #
+
+
+@dataclass
+class QuadrotorModel:
+    """Physical parameters of the planar quadrotor (``model`` in a problem).
+
+    Attributes:
+        type: Model kind; only ``"quadrotor_2d"`` exists.
+        mass: Mass m in kg (> 0). Service default 1.
+        inertia: Moment of inertia I in kg·m² (> 0). Service default 1.
+        arm_length: Distance r from the centre to each rotor in m (> 0). Service default 1.
+        gravity: Gravitational acceleration g in m/s² (≥ 0). Service default 9.81.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    type: Optional[str] = None
+    mass: Optional[float] = None
+    inertia: Optional[float] = None
+    arm_length: Optional[float] = None
+    gravity: Optional[float] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for this model, without ``None`` fields."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "QuadrotorModel":
+        """Build from the JSON object (as in ``GET /problems/default``)."""
+        known, extra = _split_known(cls, data, "/model")
+        return cls(**known, extra=extra)
+
+
+@dataclass
+class Weights:
+    """Diagonal cost weights (no ½ factors).
+
+    Attributes:
+        state: Diagonal of Q, 6 numbers ≥ 0. Service default all 1.
+        control: Diagonal of R, 2 numbers ≥ 0. Service default ``[0.1, 0.1]``.
+        terminal: Diagonal of Q_f, 6 numbers ≥ 0. Service default all 50000.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    state: Optional[Sequence[float]] = None
+    control: Optional[Sequence[float]] = None
+    terminal: Optional[Sequence[float]] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for these weights, without ``None`` fields."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Weights":
+        """Build from the JSON object."""
+        known, extra = _split_known(cls, data, "/weights")
+        return cls(**known, extra=extra)
+
+
+@dataclass
+class Obstacle:
+    """A soft obstacle: adds ``weight·exp(−‖p − center‖)`` to every stage cost.
+
+    Attributes:
+        center: ``[x, y]`` in m.
+        weight: Weight q ≥ 0 (cost units).
+        extra: Members this client does not know; sent as they are.
+    """
+
+    center: Sequence[float]
+    weight: float
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for this obstacle."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Obstacle":
+        """Build from the JSON object."""
+        known, extra = _split_known(cls, data, "/obstacles/-")
+        return cls(**known, extra=extra)
+
+
+@dataclass
+class SolverOptions:
+    """When the solver stops (``solver`` in a problem).
+
+    Attributes:
+        max_iterations: Iteration limit, 0..10000. Service default 100.
+        tolerance: Relative cost change below which the solve has converged,
+            in [0, 1). Service default 1e-9.
+        time_limit_ms: Wall-clock budget in ms; ``None`` means the service's
+            default budget (``--default-time-limit-ms``).
+        extra: Members this client does not know; sent as they are.
+    """
+
+    max_iterations: Optional[int] = None
+    tolerance: Optional[float] = None
+    time_limit_ms: Optional[int] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for these options, without ``None`` fields."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "SolverOptions":
+        """Build from the JSON object."""
+        known, extra = _split_known(cls, data, "/solver")
+        return cls(**known, extra=extra)
+
+
+@dataclass
+class OutputOptions:
+    """Which optional parts of the result to return (``output`` in a problem).
+
+    Attributes:
+        gains: Include the feedback/feedforward gains. Service default true.
+        trace: Include the per-iteration trace. Service default true.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    gains: Optional[bool] = None
+    trace: Optional[bool] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for these options, without ``None`` fields."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "OutputOptions":
+        """Build from the JSON object."""
+        known, extra = _split_known(cls, data, "/output")
+        return cls(**known, extra=extra)
+
+
+@dataclass
+class Problem:
+    """A trajectory-optimisation problem for the planar quadrotor.
+
+    Every field is optional: ``None`` leaves it out of the request and the
+    service uses the seed scenario's value, so ``Problem()`` posts ``{}``.
+    States are ``[x, y, θ, ẋ, ẏ, θ̇]`` in m, m, rad, m/s, m/s, rad/s; controls
+    are the rotor thrusts ``[u1, u2]`` in N. Sequences may be lists, tuples or
+    numpy arrays.
+
+    Attributes:
+        model: Dynamics model and its parameters.
+        integrator: Discretisation; only ``"euler"`` exists.
+        dt: Time step in s (> 0). Service default 0.05.
+        horizon: Number of control steps N (1..10000). Service default 100.
+        initial_state: 6 numbers. Service default ``[5, 0, 0, 0, 0, 0]``.
+        goal_state: 6 numbers. Service default ``[4, 9, 0, 0, 0, 0]``.
+        weights: Diagonal cost weights.
+        obstacles: Soft obstacles (at most 100); ``[]`` means none, ``None``
+            the service default (one at (4.5, 4.5) with weight 1000).
+        initial_controls: Initial guess, N rows of ``[u1, u2]``.
+        solver: Termination settings.
+        output: Which optional parts of the result to return.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    model: Optional[QuadrotorModel] = None
+    integrator: Optional[str] = None
+    dt: Optional[float] = None
+    horizon: Optional[int] = None
+    initial_state: Optional[Sequence[float]] = None
+    goal_state: Optional[Sequence[float]] = None
+    weights: Optional[Weights] = None
+    obstacles: Optional[Sequence[Obstacle]] = None
+    initial_controls: Optional[Sequence[Sequence[float]]] = None
+    solver: Optional[SolverOptions] = None
+    output: Optional[OutputOptions] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON document to post to ``/solve`` (``None`` fields left out)."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Problem":
+        """Build from a problem document, e.g. the answer of ``GET /problems/default``.
+
+        Explicit JSON ``null`` members become ``None`` (the service treats a
+        missing member and its default the same way). Unknown members are kept
+        in ``extra``.
+        """
+        known, extra = _split_known(cls, data, "(problem)")
+        parsers: Dict[str, Any] = {
+            "model": QuadrotorModel.from_dict,
+            "weights": Weights.from_dict,
+            "solver": SolverOptions.from_dict,
+            "output": OutputOptions.from_dict,
+            "obstacles": lambda items: [Obstacle.from_dict(item) for item in items],
+        }
+        for key, parse in parsers.items():
+            if known.get(key) is not None:
+                known[key] = parse(known[key])
+        return cls(**known, extra=extra)
+
+
+# --------------------------------------------------------------------------- #
+# Response models
+# --------------------------------------------------------------------------- #
+
+
+@dataclass(frozen=True)
+class TraceEntry:
+    """One iteration of the solver.
+
+    Attributes:
+        iteration: 1-based iteration number.
+        cost: Cost after the iteration (unchanged when no step was accepted).
+        expected_reduction: Reduction the quadratic model predicted.
+        actual_reduction: Reduction achieved (0 when no step was accepted).
+        step_size: Line-search step size accepted, 0 when none was.
+        regularization: Levenberg–Marquardt regularisation μ of the backward pass.
+        feedforward_norm: Mean over steps of ``max_i |d_i| / (|u_i| + 1)``.
+        elapsed_ms: Time since the solve started, in ms.
+    """
+
+    iteration: int
+    cost: float
+    expected_reduction: float
+    actual_reduction: float
+    step_size: float
+    regularization: float
+    feedforward_norm: float
+    elapsed_ms: float
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/trace/-") -> "TraceEntry":
+        """Parse one trace row; unknown members are ignored."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected an object")
+        values: Dict[str, Any] = {}
+        for f in fields(cls):
+            raw = _require(data, f.name, where)
+            path = f"{where}/{f.name}"
+            values[f.name] = _int(raw, path) if f.name == "iteration" else _float(raw, path)
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class Gains:
+    """The time-varying feedback policy ``u_k = ū_k + K_k (x_k − x̄_k)``.
+
+    Attributes:
+        feedback: K_0..K_{N−1}: N matrices of 2 rows (controls) × 6 columns
+            (states), row-major.
+        feedforward: d_0..d_{N−1}: N rows of 2, the control change the solver
+            would take next (near zero at convergence).
+    """
+
+    feedback: List[List[List[float]]]
+    feedforward: List[List[float]]
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/gains") -> "Gains":
+        """Parse the ``gains`` member of a solve answer."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected an object")
+        feedback = [
+            _matrix(k, f"{where}/feedback/{i}", STATE_DIM)
+            for i, k in enumerate(_list(_require(data, "feedback", where), f"{where}/feedback"))
+        ]
+        feedforward = _matrix(_require(data, "feedforward", where), f"{where}/feedforward", CONTROL_DIM)
+        return cls(feedback=feedback, feedforward=feedforward)
+
+    def control(self, k: int, state: Sequence[float], nominal_state: Sequence[float],
+                nominal_control: Sequence[float]) -> List[float]:
+        """Evaluate the feedback policy at step ``k``.
+
+        Args:
+            k: Step index, 0 ≤ k < N.
+            state: The actual state x_k.
+            nominal_state: The optimised state x̄_k (``result.states[k]``).
+            nominal_control: The optimised control ū_k (``result.controls[k]``).
+
+        Returns:
+            ``ū_k + K_k (x_k − x̄_k)`` as ``[u1, u2]``.
+
+        Raises:
+            ValueError: if a state does not have 6 components or the control 2.
+        """
+        if len(state) != STATE_DIM or len(nominal_state) != STATE_DIM:
+            raise ValueError(f"states must have {STATE_DIM} components")
+        if len(nominal_control) != CONTROL_DIM:
+            raise ValueError(f"the control must have {CONTROL_DIM} components")
+        deviation = [a - b for a, b in zip(state, nominal_state)]
+        return [
+            u + sum(gain * dx for gain, dx in zip(row, deviation))
+            for u, row in zip(nominal_control, self.feedback[k])
+        ]
+
+    def as_numpy(self) -> Tuple["numpy.ndarray", "numpy.ndarray"]:
+        """``(feedback, feedforward)`` as numpy arrays of shape (N, 2, 6) and (N, 2).
+
+        Raises:
+            ImportError: if numpy is not installed.
+        """
+        np = _numpy()
+        return (
+            np.asarray(self.feedback, dtype=float).reshape(-1, CONTROL_DIM, STATE_DIM),
+            np.asarray(self.feedforward, dtype=float).reshape(-1, CONTROL_DIM),
+        )
+
+
+@dataclass(frozen=True)
+class SolveResult:
+    """The answer to ``POST /solve``.
+
+    Every ``status`` is a successful solve carrying the best trajectory found;
+    check :attr:`converged` (or ``status``) to see how it ended.
+
+    Attributes:
+        status: One of :data:`SOLVE_STATUSES`.
+        cost: Final cost J.
+        initial_cost: Cost of the initial guess.
+        iterations: Iterations performed.
+        goal_distance: Distance (m) of the final position from the goal position.
+        closest_approach: Per obstacle, the smallest distance (m) from its
+            centre to any state of the trajectory.
+        states: x_0..x_N, N + 1 rows of ``[x, y, θ, ẋ, ẏ, θ̇]``.
+        controls: u_0..u_{N−1}, N rows of ``[u1, u2]``.
+        solve_time_ms: Time spent solving, in ms.
+        queue_time_ms: Time spent waiting for a worker, in ms.
+        gains: The feedback policy, or ``None`` when ``output.gains`` was false.
+        trace: One entry per iteration, or ``None`` when ``output.trace`` was false.
+        request_id: The ``x-request-id`` of the answer (not part of equality).
+    """
+
+    status: str
+    cost: float
+    initial_cost: float
+    iterations: int
+    goal_distance: float
+    closest_approach: List[float]
+    states: List[List[float]]
+    controls: List[List[float]]
+    solve_time_ms: float
+    queue_time_ms: float
+    gains: Optional[Gains] = None
+    trace: Optional[List[TraceEntry]] = None
+    request_id: Optional[str] = field(default=None, compare=False)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], request_id: Optional[str] = None) -> "SolveResult":
+        """Parse a solve answer.
+
+        Raises:
+            ValueError: if a required member is missing or has the wrong type.
+        """
+        if not isinstance(data, Mapping):
+            raise ValueError("expected a JSON object")
+        status = _require(data, "status", "(result)")
+        if not isinstance(status, str):
+            raise ValueError(f"/status: expected a string, got {status!r}")
+        gains = data.get("gains")
+        trace = data.get("trace")
+        return cls(
+            status=status,
+            cost=_float(_require(data, "cost", "(result)"), "/cost"),
+            initial_cost=_float(_require(data, "initial_cost", "(result)"), "/initial_cost"),
+            iterations=_int(_require(data, "iterations", "(result)"), "/iterations"),
+            goal_distance=_float(_require(data, "goal_distance", "(result)"), "/goal_distance"),
+            closest_approach=_vector(_require(data, "closest_approach", "(result)"), "/closest_approach"),
+            states=_matrix(_require(data, "states", "(result)"), "/states", STATE_DIM),
+            controls=_matrix(_require(data, "controls", "(result)"), "/controls", CONTROL_DIM),
+            solve_time_ms=_float(_require(data, "solve_time_ms", "(result)"), "/solve_time_ms"),
+            queue_time_ms=_float(_require(data, "queue_time_ms", "(result)"), "/queue_time_ms"),
+            gains=None if gains is None else Gains.from_dict(gains),
+            trace=None if trace is None else [
+                TraceEntry.from_dict(entry, f"/trace/{i}") for i, entry in enumerate(_list(trace, "/trace"))
+            ],
+            request_id=request_id,
+        )
+
+    @property
+    def converged(self) -> bool:
+        """Whether the solve met its tolerance (``status == "converged"``)."""
+        return self.status == "converged"
+
+    @property
+    def horizon(self) -> int:
+        """Number of control steps N."""
+        return len(self.controls)
+
+    @property
+    def positions(self) -> List[Tuple[float, float]]:
+        """The trajectory's ``(x, y)`` positions, N + 1 of them."""
+        return [(state[0], state[1]) for state in self.states]
+
+    @property
+    def cost_history(self) -> List[float]:
+        """``initial_cost`` followed by the cost after each iteration (empty without a trace)."""
+        if self.trace is None:
+            return []
+        return [self.initial_cost] + [entry.cost for entry in self.trace]
+
+    def as_numpy(self) -> Dict[str, "numpy.ndarray"]:
+        """The arrays of the result as numpy arrays.
+
+        Returns:
+            ``states`` (N+1, 6), ``controls`` (N, 2) and ``closest_approach``
+            (M,); plus ``feedback`` (N, 2, 6) and ``feedforward`` (N, 2) when
+            the result has gains, and ``cost`` (iterations + 1,) when it has a
+            trace.
+
+        Raises:
+            ImportError: if numpy is not installed.
+        """
+        np = _numpy()
+        arrays = {
+            "states": np.asarray(self.states, dtype=float).reshape(-1, STATE_DIM),
+            "controls": np.asarray(self.controls, dtype=float).reshape(-1, CONTROL_DIM),
+            "closest_approach": np.asarray(self.closest_approach, dtype=float),
+        }
+        if self.gains is not None:
+            arrays["feedback"], arrays["feedforward"] = self.gains.as_numpy()
+        if self.trace is not None:
+            arrays["cost"] = np.asarray(self.cost_history, dtype=float)
+        return arrays
+

@@ -1,0 +1,213 @@
+"""Plots of solve results, drawn with matplotlib (an optional dependency).
+
+Install it with ``pip install 'ilqr-client[plot]'``. matplotlib is imported
+only when a function here is called, so ``import ilqr_client.plot`` works
+without it; the call then raises an :class:`ImportError` that says what to
+install.
+
+* :func:`plot_solution`: the (x, y) trajectory, start, end and goal markers,
+  obstacle centres and circles at the closest approach.
+* :func:`plot_cost`: cost per iteration from the trace, on a log scale.
+* :func:`save_figure`: both panels side by side, written as a PNG (uses no
+  pyplot state, so it is safe in scripts, servers and threads).
+"""
+
+from __future__ import annotations
+
+import os
+from typing import TYPE_CHECKING, Any, List, Mapping, Optional, Sequence, Tuple, Union
+
+from .models import Problem, SolveResult
+
+if TYPE_CHECKING:  # pragma: no cover
+    from matplotlib.axes import Axes
+
+__all__ = ["plot_solution", "plot_cost", "save_figure"]
+
+#: The seed scenario's goal and obstacles: what the service uses when a problem omits them.
+_SEED_GOAL_STATE: Tuple[float, ...] = (4.0, 9.0, 0.0, 0.0, 0.0, 0.0)
+_SEED_OBSTACLES: Tuple[Tuple[Tuple[float, float], float], ...] = (((4.5, 4.5), 1000.0),)
+
+PathLike = Union[str, "os.PathLike[str]"]
+
+
+def _require_matplotlib() -> Any:
+    """Import matplotlib, or explain how to install it."""
+    try:
+        import matplotlib
+    except ImportError as exc:
+        raise ImportError(
+            "ilqr_client.plot needs matplotlib; install it with: pip install 'ilqr-client[plot]'"
+        ) from exc
+    return matplotlib
+
+
+def _new_axes() -> "Axes":
+    """A fresh pyplot figure's axes (only used when the caller passes none)."""
+    _require_matplotlib()
+    import matplotlib.pyplot as plt
+
+    _, ax = plt.subplots()
+    return ax
+
+
+def _goal_and_obstacles(
+    problem: Union[Problem, Mapping[str, Any], None],
+) -> Tuple[Optional[Sequence[float]], List[Tuple[Sequence[float], float]]]:
+    """The goal state and obstacles the service solved for.
+
+    With no problem nothing is known (``None, []``). A problem that omits the
+    goal or the obstacles was solved with the seed scenario's, so those are used.
+    """
+    if problem is None:
+        return None, []
+    if isinstance(problem, Problem):
+        problem = problem.to_dict()
+    goal = problem.get("goal_state")
+    if goal is None:
+        goal = _SEED_GOAL_STATE
+    raw_obstacles = problem.get("obstacles")
+    if raw_obstacles is None:
+        return goal, list(_SEED_OBSTACLES)
+    obstacles = []
+    for obstacle in raw_obstacles:
+        if not isinstance(obstacle, Mapping):  # an Obstacle dataclass
+            obstacle = obstacle.to_dict()
+        obstacles.append((obstacle["center"], float(obstacle["weight"])))
+    return goal, obstacles
+
+
+def plot_solution(
+    result: SolveResult,
+    problem: Union[Problem, Mapping[str, Any], None] = None,
+    ax: Optional["Axes"] = None,
+) -> "Axes":
+    """Draw the optimised (x, y) trajectory.
+
+    Draws the path, a start marker, an end marker and, when ``problem`` is
+    given, the goal position and each obstacle's centre with a dashed circle
+    whose radius is the trajectory's closest approach to it (so the path
+    touches the circle and never enters it).
+
+    Args:
+        result: The solve result.
+        problem: The problem that was solved (a :class:`Problem` or a dict).
+            Fields it omits are taken to be the seed scenario's, as the
+            service does. Without it, goal and obstacles are not drawn.
+        ax: Axes to draw on; a new pyplot figure when omitted.
+
+    Returns:
+        The axes drawn on.
+
+    Raises:
+        ImportError: if matplotlib is not installed.
+    """
+    _require_matplotlib()
+    from matplotlib.patches import Circle
+
+    if ax is None:
+        ax = _new_axes()
+    xs = [state[0] for state in result.states]
+    ys = [state[1] for state in result.states]
+    goal, obstacles = _goal_and_obstacles(problem)
+    ax.plot(xs, ys, "-", color="tab:blue", linewidth=1.5, label="trajectory")
+    ax.plot(xs[0], ys[0], "o", color="tab:green", markersize=8, label="start")
+    if goal is not None:  # drawn before the end marker, which usually sits on it
+        ax.plot(goal[0], goal[1], "*", color="tab:orange", markersize=16, label="goal")
+    ax.plot(xs[-1], ys[-1], "s", color="tab:blue", markersize=6, label="end")
+    for j, (center, weight) in enumerate(obstacles):
+        ax.plot(center[0], center[1], "x", color="tab:red", markersize=9, mew=2,
+                label="obstacle" if j == 0 else None)
+        ax.annotate(f"q={weight:g}", (center[0], center[1]), textcoords="offset points",
+                    xytext=(6, 6), fontsize=8, color="tab:red")
+        if j < len(result.closest_approach):
+            ax.add_patch(Circle(
+                (center[0], center[1]), result.closest_approach[j], fill=False,
+                linestyle="--", edgecolor="tab:red", alpha=0.7,
+                label="closest approach" if j == 0 else None,
+            ))
+
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.autoscale_view()
+    ax.set_xlabel("x [m]")
+    ax.set_ylabel("y [m]")
+    ax.set_title(f"trajectory: {result.status}, cost {result.cost:.6g}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def plot_cost(result: SolveResult, ax: Optional["Axes"] = None) -> "Axes":
+    """Draw the cost per iteration on a log scale.
+
+    Iteration 0 is the initial guess's cost; iterations whose step was
+    rejected (``step_size == 0``) are marked with red crosses.
+
+    Args:
+        result: A solve result with a trace (solved with ``output.trace`` true,
+            the default).
+        ax: Axes to draw on; a new pyplot figure when omitted.
+
+    Returns:
+        The axes drawn on.
+
+    Raises:
+        ValueError: if the result has no trace.
+        ImportError: if matplotlib is not installed.
+    """
+    if result.trace is None:
+        raise ValueError("the result has no trace: solve with output.trace = true")
+    _require_matplotlib()
+    if ax is None:
+        ax = _new_axes()
+    costs = result.cost_history
+    ax.plot(range(len(costs)), costs, "o-", color="tab:blue", markersize=3, label="cost")
+    rejected = [(entry.iteration, entry.cost) for entry in result.trace if entry.step_size == 0]
+    if rejected:
+        ax.plot([it for it, _ in rejected], [c for _, c in rejected], "x", color="tab:red",
+                markersize=7, label="step rejected")
+    ax.set_yscale("log")
+    ax.set_xlabel("iteration")
+    ax.set_ylabel("cost J")
+    ax.set_title(f"cost: {result.iterations} iterations, {result.solve_time_ms:.1f} ms")
+    ax.grid(True, which="both", alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def save_figure(
+    result: SolveResult,
+    problem: Union[Problem, Mapping[str, Any], None],
+    path: PathLike,
+    *,
+    dpi: int = 100,
+) -> None:
+    """Write a two-panel PNG: the trajectory (left) and the cost history (right).
+
+    Uses :class:`matplotlib.figure.Figure` directly, not pyplot, so it needs
+    no GUI backend and leaves pyplot's global state alone. Without a trace
+    the right panel says so instead of raising.
+
+    Args:
+        result: The solve result.
+        problem: The problem that was solved, or ``None`` (see :func:`plot_solution`).
+        path: Where to write the PNG.
+        dpi: Resolution.
+
+    Raises:
+        ImportError: if matplotlib is not installed.
+    """
+    _require_matplotlib()
+    from matplotlib.figure import Figure
+
+    figure = Figure(figsize=(12, 5))
+    left, right = figure.subplots(1, 2)
+    plot_solution(result, problem, ax=left)
+    if result.trace is not None:
+        plot_cost(result, ax=right)
+    else:
+        right.text(0.5, 0.5, "no trace\n(solve with output.trace = true)",
+                   ha="center", va="center", transform=right.transAxes)
+        right.set_axis_off()
+    figure.tight_layout()
+    figure.savefig(os.fspath(path), dpi=dpi, format="png")

@@ -1,0 +1,215 @@
+"""Error answers: typed exceptions from the real service, and parsing of odd bodies."""
+
+from __future__ import annotations
+
+import pickle
+from typing import Any, Dict, List, Optional
+
+import pytest
+import requests
+from conftest import ServiceProcess
+from ilqr_client import (
+    ApiError,
+    Client,
+    FieldError,
+    MalformedRequestError,
+    MethodNotAllowedError,
+    NotFoundError,
+    OverloadedError,
+    PayloadTooLargeError,
+    Problem,
+    ServerError,
+    ShuttingDownError,
+    UnexpectedResponseError,
+    UnsupportedMediaTypeError,
+    ValidationError,
+)
+from ilqr_client.errors import error_from_response, parse_retry_after
+
+
+@pytest.mark.parametrize(
+    ("problem", "pointers"),
+    [
+        pytest.param({"dt": -1}, ["/dt"], id="negative-dt"),
+        pytest.param({"foo": 1}, ["/foo"], id="unknown-field"),
+        pytest.param({"initial_state": [1, 2]}, ["/initial_state"], id="wrong-length"),
+        pytest.param({"solver": {"time_limit_ms": 0}}, ["/solver/time_limit_ms"], id="nested"),
+        pytest.param(
+            {"dt": -1, "horizon": 0, "weights": {"state": [1, 1, -1, 1, 1, 1]}},
+            ["/dt", "/horizon", "/weights/state/2"],
+            id="several",
+        ),
+        pytest.param(Problem(extra={"bogus": True}), ["/bogus"], id="dataclass-extra"),
+    ],
+)
+def test_validation_errors(client: Client, problem: Any, pointers: List[str]) -> None:
+    with pytest.raises(ValidationError) as info:
+        client.solve(problem)
+    error = info.value
+    assert error.status == 422
+    assert error.type == "urn:ilqr-service:validation"
+    assert error.slug == "validation"
+    assert sorted(error.pointers) == sorted(pointers)
+    assert all(isinstance(e, FieldError) and e.detail for e in error.errors)
+    assert error.request_id
+    assert pointers[0] in str(error)
+
+
+def test_validation_error_carries_the_request_id(client: Client) -> None:
+    with pytest.raises(ValidationError) as info:
+        client.solve({"dt": -1}, request_id="bad-dt-42")
+    assert info.value.request_id == "bad-dt-42"
+    assert "bad-dt-42" in str(info.value)
+
+
+def test_client_errors_are_not_retried(service: ServiceProcess, monkeypatch: pytest.MonkeyPatch) -> None:
+    client = Client(service.url, retries=3)
+    sleeps: List[float] = []
+    monkeypatch.setattr(client, "_sleep", sleeps.append)
+    with client, pytest.raises(ValidationError):
+        client.solve({"dt": -1})
+    assert sleeps == []
+
+
+def test_unsupported_media_type(service: ServiceProcess) -> None:
+    response = requests.post(
+        f"{service.url}/solve", data="{}", headers={"Content-Type": "text/plain"}, timeout=10
+    )
+    assert response.status_code == 415
+    assert response.headers["content-type"].startswith("application/problem+json")
+    error = error_from_response(response)
+    assert isinstance(error, UnsupportedMediaTypeError)
+    assert error.slug == "unsupported-media-type"
+    assert error.request_id == response.headers["x-request-id"]
+
+
+def test_malformed_json(service: ServiceProcess) -> None:
+    response = requests.post(
+        f"{service.url}/solve", data="{bad", headers={"Content-Type": "application/json"}, timeout=10
+    )
+    error = error_from_response(response)
+    assert isinstance(error, MalformedRequestError)
+    assert error.status == 400 and error.slug == "malformed-json"
+
+
+def test_payload_too_large(client: Client) -> None:
+    # The service's default limit is 4 MiB; it answers 413 before looking at the fields.
+    problem = {"padding": "x" * 5_000_000}
+    with pytest.raises(PayloadTooLargeError) as info:
+        client.solve(problem)
+    assert info.value.status == 413
+
+
+def test_not_found_and_method_not_allowed(service: ServiceProcess) -> None:
+    with Client(f"{service.url}/no-such-prefix") as c, pytest.raises(NotFoundError) as info:
+        c.default_problem()
+    assert info.value.status == 404
+    error = error_from_response(requests.get(f"{service.url}/solve", timeout=10))
+    assert isinstance(error, MethodNotAllowedError) and error.status == 405
+
+
+def test_nan_is_refused_before_sending(client: Client) -> None:
+    with pytest.raises(ValueError):
+        client.solve({"dt": float("nan")})
+
+
+def test_unsupported_problem_type(client: Client) -> None:
+    with pytest.raises(TypeError):
+        client.solve([1, 2, 3])  # type: ignore[arg-type]
+
+
+# --------------------------------------------------------------------------- #
+# Parsing without a server
+# --------------------------------------------------------------------------- #
+
+
+def fake_response(
+    status: int, body: str, content_type: str = "application/problem+json",
+    headers: Optional[Dict[str, str]] = None, reason: str = "",
+) -> requests.Response:
+    """A requests.Response as if received from a server."""
+    response = requests.Response()
+    response.status_code = status
+    response.reason = reason
+    response._content = body.encode()
+    response.headers["content-type"] = content_type
+    response.headers.update(headers or {})
+    return response
+
+
+def test_non_problem_body_from_a_proxy() -> None:
+    error = error_from_response(
+        fake_response(502, "<html>Bad gateway</html>", "text/html", reason="Bad Gateway")
+    )
+    assert type(error) is ServerError
+    assert error.status == 502 and error.type is None
+    assert error.title == "Bad Gateway" and "Bad gateway" in error.detail
+
+
+def test_non_problem_503_with_retry_after_is_an_overload() -> None:
+    error = error_from_response(fake_response(503, "busy", "text/plain", {"Retry-After": "7"}))
+    assert isinstance(error, OverloadedError) and error.retry_after == 7
+
+
+def test_unknown_4xx_is_a_plain_api_error() -> None:
+    error = error_from_response(fake_response(429, "slow down", "text/plain"))
+    assert type(error) is ApiError and error.status == 429 and error.detail == "slow down"
+
+
+def test_problem_documents_map_by_type() -> None:
+    overloaded = error_from_response(fake_response(
+        503,
+        '{"type":"urn:ilqr-service:overloaded","title":"Solver queue full","status":503,'
+        '"detail":"retry in 2 s","retry_after":2}',
+    ))
+    assert isinstance(overloaded, OverloadedError) and overloaded.retry_after == 2.0
+
+    draining = error_from_response(fake_response(
+        503, '{"type":"urn:ilqr-service:shutting-down","title":"Service shutting down","status":503,"detail":"x"}'
+    ))
+    assert isinstance(draining, ShuttingDownError) and draining.retry_after is None
+
+    internal = error_from_response(fake_response(
+        500, '{"type":"urn:ilqr-service:internal","title":"Internal error","status":500,"detail":"bug"}',
+        headers={"x-request-id": "r-1"},
+    ))
+    assert isinstance(internal, ServerError) and internal.request_id == "r-1"
+
+    unknown = error_from_response(fake_response(
+        400, '{"type":"urn:ilqr-service:something-new","title":"New","status":400,"detail":"d"}'
+    ))
+    assert isinstance(unknown, MalformedRequestError) and unknown.slug == "something-new"
+
+
+def test_parse_retry_after() -> None:
+    assert parse_retry_after(None) is None
+    assert parse_retry_after("3") == 3.0
+    assert parse_retry_after("-1") is None
+    assert parse_retry_after("soon") is None
+    now = 1_445_412_450.0  # 2015-10-21 07:27:30 UTC
+    assert parse_retry_after("Wed, 21 Oct 2015 07:28:00 GMT", now=now) == pytest.approx(30.0)
+    assert parse_retry_after("Wed, 21 Oct 2015 07:27:00 GMT", now=now) == 0.0
+
+
+def test_unexpected_success_body(monkeypatch: pytest.MonkeyPatch) -> None:
+    client = Client("http://example.invalid")
+    monkeypatch.setattr(
+        client.session, "request",
+        lambda *args, **kwargs: fake_response(200, '{"status": "converged"}', "application/json"),
+    )
+    with client, pytest.raises(UnexpectedResponseError, match="cost"):
+        client.solve({})
+
+
+def test_errors_survive_pickling() -> None:
+    error = ValidationError(
+        422, "Invalid problem", "2 invalid fields; see `errors`",
+        type_="urn:ilqr-service:validation",
+        errors=[FieldError("/dt", "must be positive"), FieldError("/horizon", "too big")],
+        request_id="r-7",
+    )
+    copy = pickle.loads(pickle.dumps(error))
+    assert type(copy) is ValidationError
+    assert copy.pointers == ["/dt", "/horizon"]
+    assert copy.request_id == "r-7" and copy.status == 422
+    assert str(copy) == str(error)

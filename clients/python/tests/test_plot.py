@@ -1,0 +1,69 @@
+"""The matplotlib helpers (skipped when matplotlib is not installed)."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Any
+
+import pytest
+from ilqr_client import Problem, SolveResult
+from ilqr_client.plot import plot_cost, plot_solution, save_figure
+
+
+@pytest.fixture
+def figure() -> Any:
+    """A pyplot-free matplotlib figure on the Agg backend."""
+    matplotlib = pytest.importorskip("matplotlib")
+    matplotlib.use("Agg")
+    from matplotlib.figure import Figure
+
+    return Figure()
+
+
+def test_save_figure_writes_a_png(seed_result: SolveResult, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "solution.png"
+    save_figure(seed_result, {}, path)
+    data = path.read_bytes()
+    assert data.startswith(b"\x89PNG\r\n\x1a\n")
+    assert len(data) > 10_000
+
+
+def test_save_figure_without_trace(seed_result: SolveResult, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    import dataclasses
+
+    path = tmp_path / "no-trace.png"
+    save_figure(dataclasses.replace(seed_result, trace=None), None, path)
+    assert path.read_bytes().startswith(b"\x89PNG")
+
+
+def test_plot_solution_draws_obstacle_circles(seed_result: SolveResult, figure: Any) -> None:
+    ax = figure.subplots()
+    assert plot_solution(seed_result, Problem(), ax=ax) is ax
+    circles = [patch for patch in ax.patches if hasattr(patch, "get_radius")]
+    assert len(circles) == 1
+    assert circles[0].get_radius() == pytest.approx(seed_result.closest_approach[0])
+    assert tuple(circles[0].center) == (4.5, 4.5)
+    labels = ax.get_legend_handles_labels()[1]
+    assert {"trajectory", "start", "end", "goal", "obstacle", "closest approach"} <= set(labels)
+
+
+def test_plot_cost_is_log_scale(seed_result: SolveResult, figure: Any) -> None:
+    ax = plot_cost(seed_result, ax=figure.subplots())
+    assert ax.get_yscale() == "log"
+    assert len(ax.lines[0].get_ydata()) == seed_result.iterations + 1
+
+
+def test_plot_cost_needs_a_trace(seed_result: SolveResult) -> None:
+    import dataclasses
+
+    with pytest.raises(ValueError, match="trace"):
+        plot_cost(dataclasses.replace(seed_result, trace=None))
+
+
+def test_missing_matplotlib_is_explained(seed_result: SolveResult, monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setitem(sys.modules, "matplotlib", None)  # makes `import matplotlib` fail
+    with pytest.raises(ImportError, match=r"ilqr-client\[plot\]"):
+        plot_solution(seed_result)

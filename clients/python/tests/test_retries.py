@@ -1,0 +1,109 @@
+"""Overload, shutdown and connection failures: what is retried and what is raised.
+
+A server with one worker and no queue is overloaded by a single background
+solve; every other solve then gets ``503 overloaded`` with ``Retry-After: 1``.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+from pathlib import Path
+from typing import Iterator, List
+
+import pytest
+import requests
+from conftest import (
+    BackgroundSolve,
+    ServiceProcess,
+    busy_problem,
+    free_port,
+    running_service,
+)
+from ilqr_client import Client, OverloadedError, ShuttingDownError
+
+SMALL = {"horizon": 20, "output": {"gains": False, "trace": False}}
+
+
+@pytest.fixture(scope="module")
+def single_worker(tmp_path_factory: pytest.TempPathFactory) -> Iterator[ServiceProcess]:
+    """A server that can run one solve at a time and queues none."""
+    with running_service(
+        tmp_path_factory.mktemp("single-worker"), "--workers", "1", "--queue-capacity", "0"
+    ) as svc:
+        yield svc
+
+
+def test_overload_is_raised_without_retries(single_worker: ServiceProcess) -> None:
+    job = BackgroundSolve(single_worker.url, busy_problem(2500)).start()
+
+    with Client(single_worker.url, retries=0) as client:
+        started = time.monotonic()
+        with pytest.raises(OverloadedError) as info:
+            client.solve({})
+        assert time.monotonic() - started < 0.5, "retries=0 must not wait"
+    error = info.value
+    assert error.status == 503
+    assert error.type == "urn:ilqr-service:overloaded"
+    assert error.retry_after is not None and error.retry_after >= 1
+    assert error.request_id
+
+    # With one retry the client waits out Retry-After once, then gives up.
+    with Client(single_worker.url, retries=1) as client:
+        started = time.monotonic()
+        with pytest.raises(OverloadedError):
+            client.solve(SMALL)
+        assert time.monotonic() - started >= 1.0
+
+    assert len(job.result().states) == 10001
+
+
+def test_retry_honours_retry_after(single_worker: ServiceProcess, caplog: pytest.LogCaptureFixture) -> None:
+    job = BackgroundSolve(single_worker.url, busy_problem(1500)).start()
+
+    with caplog.at_level(logging.WARNING, logger="ilqr_client"):
+        with Client(single_worker.url, retries=5) as client:
+            started = time.monotonic()
+            result = client.solve(SMALL)
+            waited = time.monotonic() - started
+
+    assert len(result.states) == 21
+    assert waited >= 1.0, f"the client should have slept for Retry-After, waited {waited:.2f} s"
+    # The retry got through because the busy solve released the worker.
+    assert len(job.result().states) == 10001
+    retries = [r for r in caplog.records if "overloaded" in r.getMessage()]
+    assert retries and "Retry-After 1" in retries[0].getMessage()
+
+
+def test_shutting_down_is_not_retried(tmp_path: Path) -> None:
+    with running_service(tmp_path, "--workers", "1", "--shutdown-grace-secs", "10") as svc:
+        job = BackgroundSolve(svc.url, busy_problem(1500)).start()
+        svc.signal_shutdown()
+        with Client(svc.url, retries=3) as client:
+            deadline = time.monotonic() + 5
+            while client.ready() and time.monotonic() < deadline:
+                time.sleep(0.02)
+            assert client.ready() is False
+
+            started = time.monotonic()
+            with pytest.raises(ShuttingDownError) as info:
+                client.solve(SMALL)
+            assert time.monotonic() - started < 0.5, "shutting-down must not be retried"
+        assert info.value.status == 503 and info.value.retry_after is None
+        # The solve that was in flight is allowed to finish.
+        assert len(job.result().states) == 10001
+        assert svc.stop() == 0
+
+
+def test_connection_failures_are_retried_with_backoff(monkeypatch: pytest.MonkeyPatch) -> None:
+    url = f"http://127.0.0.1:{free_port()}"  # nothing listens there
+    client = Client(url, retries=2, backoff=0.05, timeout=2)
+    sleeps: List[float] = []
+    monkeypatch.setattr(client, "_sleep", sleeps.append)
+    with client:
+        with pytest.raises(requests.ConnectionError):
+            client.solve({})
+        assert len(sleeps) == 2
+        assert 0.05 <= sleeps[0] <= 0.055 and 0.1 <= sleeps[1] <= 0.11
+        assert client.health() is False
+        assert client.ready() is False

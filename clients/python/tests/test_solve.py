@@ -1,0 +1,175 @@
+"""Successful calls against the real service: solving, the default problem, output options."""
+
+from __future__ import annotations
+
+import math
+
+import pytest
+import requests
+from conftest import SEED_COST, ServiceProcess
+from ilqr_client import (
+    Client,
+    Gains,
+    Obstacle,
+    OutputOptions,
+    Problem,
+    SolveResult,
+    SolverOptions,
+    TraceEntry,
+)
+
+
+def test_health_and_ready(client: Client) -> None:
+    assert client.health() is True
+    assert client.ready() is True
+
+
+def test_seed_problem_converges(seed_result: SolveResult) -> None:
+    result = seed_result
+    assert result.status == "converged"
+    assert result.converged
+    assert result.cost == pytest.approx(SEED_COST, rel=1e-4)
+    assert result.initial_cost > result.cost
+    assert result.goal_distance < 0.01
+    assert result.solve_time_ms > 0 and result.queue_time_ms >= 0
+    assert result.request_id
+
+    assert len(result.states) == 101 and all(len(state) == 6 for state in result.states)
+    assert len(result.controls) == 100 and all(len(control) == 2 for control in result.controls)
+    assert result.horizon == 100
+    assert result.states[0] == [5.0, 0.0, 0.0, 0.0, 0.0, 0.0]
+    assert len(result.closest_approach) == 1 and result.closest_approach[0] > 0
+
+
+def test_seed_problem_gains(seed_result: SolveResult) -> None:
+    gains = seed_result.gains
+    assert isinstance(gains, Gains)
+    assert len(gains.feedback) == 100
+    assert all(len(k) == 2 and all(len(row) == 6 for row in k) for k in gains.feedback)
+    assert len(gains.feedforward) == 100 and all(len(d) == 2 for d in gains.feedforward)
+    # On the nominal trajectory the feedback policy reproduces the nominal controls.
+    k = 42
+    state, control = seed_result.states[k], seed_result.controls[k]
+    assert gains.control(k, state, state, control) == pytest.approx(control)
+    # Off it, the correction is K_k times the deviation: here 0.1 m in x, column 0 of K_k.
+    moved = [state[0] + 0.1, *state[1:]]
+    expected = [control[i] + 0.1 * gains.feedback[k][i][0] for i in range(2)]
+    assert gains.control(k, moved, state, control) == pytest.approx(expected)
+    with pytest.raises(ValueError):
+        gains.control(k, state[:5], state, control)
+
+
+def test_seed_problem_trace(seed_result: SolveResult) -> None:
+    trace = seed_result.trace
+    assert trace, "trace should be present and non-empty"
+    assert all(isinstance(entry, TraceEntry) for entry in trace)
+    assert [entry.iteration for entry in trace] == list(range(1, len(trace) + 1))
+    assert seed_result.iterations == len(trace)
+    costs = seed_result.cost_history
+    assert costs[0] == seed_result.initial_cost
+    assert all(later <= earlier for earlier, later in zip(costs, costs[1:])), costs
+    assert trace[-1].cost == seed_result.cost
+
+
+def test_none_and_empty_problem_are_the_seed(client: Client, seed_result: SolveResult) -> None:
+    assert client.solve().cost == seed_result.cost
+    assert client.solve(Problem()).cost == seed_result.cost
+
+
+def test_default_problem_round_trips(client: Client, service: ServiceProcess, seed_result: SolveResult) -> None:
+    problem = client.default_problem()
+    assert isinstance(problem, Problem)
+    assert problem.horizon == 100 and problem.dt == 0.05
+    assert problem.model is not None and problem.model.type == "quadrotor_2d"
+    assert problem.obstacles == [Obstacle(center=[4.5, 4.5], weight=1000.0)]
+    assert problem.extra == {}
+
+    # Posting the parsed problem back solves the same problem.
+    assert client.solve(problem).cost == seed_result.cost
+
+    # The raw document (with its explicit nulls) posts back too, and parsing
+    # loses nothing but the nulls.
+    raw = requests.get(f"{service.url}/problems/default", timeout=10).json()
+    assert client.solve(raw).cost == seed_result.cost
+    without_nulls = {key: value for key, value in raw.items() if value is not None}
+    without_nulls["solver"] = {k: v for k, v in raw["solver"].items() if v is not None}
+    assert problem.to_dict() == without_nulls
+
+
+def test_edited_default_problem(client: Client) -> None:
+    problem = client.default_problem()
+    problem.horizon = 40
+    problem.obstacles = []
+    problem.output = OutputOptions(gains=False, trace=True)
+    result = client.solve(problem)
+    assert len(result.states) == 41 and len(result.controls) == 40
+    assert result.closest_approach == []
+    assert result.gains is None and result.trace is not None
+
+
+def test_output_flags_omit_gains_and_trace(client: Client, service: ServiceProcess) -> None:
+    problem = {"output": {"gains": False, "trace": False}}
+    result = client.solve(problem)
+    assert result.gains is None
+    assert result.trace is None
+    assert result.cost_history == []
+    assert len(result.states) == 101
+
+    raw = requests.post(f"{service.url}/solve", json=problem, timeout=30).json()
+    assert "gains" not in raw and "trace" not in raw
+
+
+def test_time_limit_returns_best_trajectory(client: Client) -> None:
+    problem = Problem(
+        horizon=5000,
+        dt=0.001,
+        solver=SolverOptions(time_limit_ms=50, tolerance=0, max_iterations=10000),
+        output=OutputOptions(gains=False, trace=False),
+    )
+    result = client.solve(problem)
+    assert result.status == "time_limit"
+    assert not result.converged
+    assert len(result.states) == 5001 and len(result.controls) == 5000
+    assert math.isfinite(result.cost)
+
+
+def test_request_id_is_sent_and_echoed(client: Client) -> None:
+    result = client.solve({"horizon": 5, "output": {"gains": False, "trace": False}}, request_id="client-test-1")
+    assert result.request_id == "client-test-1"
+
+
+def test_numpy_problem_values_and_as_numpy(client: Client, seed_result: SolveResult) -> None:
+    np = pytest.importorskip("numpy")
+    result = client.solve({"initial_state": np.array([5.0, 0, 0, 0, 0, 0]), "dt": np.float64(0.05)})
+    assert result.cost == seed_result.cost
+
+    arrays = seed_result.as_numpy()
+    assert arrays["states"].shape == (101, 6)
+    assert arrays["controls"].shape == (100, 2)
+    assert arrays["feedback"].shape == (100, 2, 6)
+    assert arrays["feedforward"].shape == (100, 2)
+    assert arrays["cost"].shape == (seed_result.iterations + 1,)
+    assert arrays["closest_approach"].shape == (1,)
+
+
+def test_results_are_frozen(seed_result: SolveResult) -> None:
+    with pytest.raises(AttributeError):
+        seed_result.cost = 0.0  # type: ignore[misc]
+
+
+def test_context_manager_closes_its_own_session(service: ServiceProcess, monkeypatch: pytest.MonkeyPatch) -> None:
+    client = Client(service.url)
+    closed = []
+    monkeypatch.setattr(client.session, "close", lambda: closed.append(True))
+    with client as c:
+        assert c.health()
+    assert closed == [True]
+
+
+def test_borrowed_session_is_not_closed(service: ServiceProcess, monkeypatch: pytest.MonkeyPatch) -> None:
+    session = requests.Session()
+    closed = []
+    monkeypatch.setattr(session, "close", lambda: closed.append(True))
+    with Client(service.url, session=session) as c:
+        assert c.health()
+    assert closed == []

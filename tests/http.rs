@@ -1,0 +1,462 @@
+//! The service over a real socket on 127.0.0.1:0: the happy path, every
+//! error class, overload, time budgets, client disconnects, metrics and a
+//! graceful shutdown.
+
+use std::net::SocketAddr;
+use std::time::{Duration, Instant};
+
+use ilqr_service::server::{AppState, Config, run};
+use reqwest::StatusCode;
+use serde_json::{Value, json};
+use tokio::net::TcpListener;
+use tokio::sync::oneshot;
+use tokio::task::JoinHandle;
+
+/// A solve that runs until its time limit: a long horizon and no tolerance.
+fn slow(time_limit_ms: u64) -> Value {
+    json!({"horizon": 10000, "dt": 0.0005,
+           "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": time_limit_ms},
+           "output": {"gains": false, "trace": false}})
+}
+
+struct Server {
+    addr: SocketAddr,
+    stop: Option<oneshot::Sender<()>>,
+    task: JoinHandle<std::io::Result<()>>,
+}
+
+impl Server {
+    async fn start(config: Config) -> Self {
+        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = listener.local_addr().unwrap();
+        let state = AppState::new(config).unwrap();
+        let (tx, rx) = oneshot::channel();
+        let task = tokio::spawn(run(listener, state, async {
+            let _ = rx.await;
+        }));
+        Self {
+            addr,
+            stop: Some(tx),
+            task,
+        }
+    }
+
+    async fn default() -> Self {
+        Self::start(Config::default()).await
+    }
+
+    fn url(&self, path: &str) -> String {
+        format!("http://{}{path}", self.addr)
+    }
+
+    async fn post(&self, body: &Value) -> reqwest::Response {
+        reqwest::Client::new()
+            .post(self.url("/solve"))
+            .json(body)
+            .send()
+            .await
+            .unwrap()
+    }
+
+    async fn get(&self, path: &str) -> reqwest::Response {
+        reqwest::get(self.url(path)).await.unwrap()
+    }
+}
+
+fn small(workers: usize, queue: usize) -> Config {
+    Config {
+        workers: Some(workers),
+        queue_capacity: queue,
+        ..Config::default()
+    }
+}
+
+async fn problem_of(res: reqwest::Response, status: StatusCode) -> Value {
+    assert_eq!(res.status(), status);
+    assert_eq!(res.headers()["content-type"], "application/problem+json");
+    assert!(res.headers().contains_key("x-request-id"));
+    let body: Value = res.json().await.unwrap();
+    assert_eq!(body["status"], status.as_u16());
+    assert!(
+        body["type"]
+            .as_str()
+            .unwrap()
+            .starts_with("urn:ilqr-service:")
+    );
+    assert!(!body["detail"].as_str().unwrap().is_empty());
+    body
+}
+
+#[tokio::test]
+async fn the_empty_problem_solves_the_seed_scenario() {
+    let s = Server::default().await;
+    let res = s.post(&json!({})).await;
+    assert_eq!(res.status(), 200);
+    assert!(res.headers().contains_key("x-request-id"));
+    let r: Value = res.json().await.unwrap();
+    assert_eq!(r["status"], "converged");
+    let cost = r["cost"].as_f64().unwrap();
+    assert!((cost - 5520.212).abs() / 5520.212 < 1e-4, "{cost}");
+    assert_eq!(r["states"].as_array().unwrap().len(), 101);
+    assert_eq!(r["controls"].as_array().unwrap().len(), 100);
+    let feedback = r["gains"]["feedback"].as_array().unwrap();
+    assert_eq!(feedback.len(), 100);
+    assert_eq!(feedback[0].as_array().unwrap().len(), 2);
+    assert_eq!(feedback[0][0].as_array().unwrap().len(), 6);
+    assert_eq!(r["gains"]["feedforward"].as_array().unwrap().len(), 100);
+    assert_eq!(
+        r["trace"].as_array().unwrap().len() as u64,
+        r["iterations"].as_u64().unwrap()
+    );
+    assert!(r["goal_distance"].as_f64().unwrap() < 0.002);
+    assert!(r["queue_time_ms"].as_f64().unwrap() >= 0.0);
+    assert!(r["solve_time_ms"].as_f64().unwrap() > 0.0);
+}
+
+#[tokio::test]
+async fn the_default_problem_round_trips() {
+    let s = Server::default().await;
+    let spec: Value = s.get("/problems/default").await.json().await.unwrap();
+    assert_eq!(spec["horizon"], 100);
+    assert_eq!(spec["obstacles"][0]["center"], json!([4.5, 4.5]));
+    let a: Value = s.post(&spec).await.json().await.unwrap();
+    let b: Value = s.post(&json!({})).await.json().await.unwrap();
+    assert_eq!(a["cost"], b["cost"]);
+}
+
+#[tokio::test]
+async fn gains_and_trace_can_be_left_out() {
+    let s = Server::default().await;
+    let r: Value = s
+        .post(&json!({"output": {"gains": false, "trace": false}}))
+        .await
+        .json()
+        .await
+        .unwrap();
+    assert_eq!(r["status"], "converged");
+    assert!(r.get("gains").is_none() && r.get("trace").is_none());
+    assert_eq!(r["states"].as_array().unwrap().len(), 101);
+}
+
+#[tokio::test]
+async fn responses_are_gzipped_when_asked() {
+    let s = Server::default().await;
+    let res = reqwest::Client::new()
+        .post(s.url("/solve"))
+        .header("accept-encoding", "gzip")
+        .json(&json!({}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 200);
+    assert_eq!(res.headers()["content-encoding"], "gzip");
+}
+
+#[tokio::test]
+async fn every_error_class_is_a_problem_document() {
+    let s = Server::start(Config {
+        max_body_bytes: 4096,
+        ..Config::default()
+    })
+    .await;
+    let client = reqwest::Client::new();
+    let raw = |body: &'static str, ct: Option<&'static str>| {
+        let mut req = client.post(s.url("/solve")).body(body);
+        if let Some(ct) = ct {
+            req = req.header("content-type", ct);
+        }
+        req.send()
+    };
+
+    problem_of(
+        raw("{\"dt\": ", Some("application/json")).await.unwrap(),
+        StatusCode::BAD_REQUEST,
+    )
+    .await;
+
+    let p = problem_of(
+        raw("{\"dt\": -1}", Some("application/json")).await.unwrap(),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/dt");
+
+    let p = problem_of(
+        s.post(&json!({"weights": {"state": [1, 2]}})).await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/weights/state");
+    let p = problem_of(
+        s.post(&json!({"horizn": 5})).await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/horizn");
+    let p = problem_of(
+        s.post(&json!({"horizon": 10001})).await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/horizon");
+    let p = problem_of(
+        s.post(&json!({"solver": {"time_limit_ms": 3_600_000}}))
+            .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/solver/time_limit_ms");
+
+    problem_of(
+        raw("{}", None).await.unwrap(),
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+    )
+    .await;
+    problem_of(
+        raw("{}", Some("text/plain")).await.unwrap(),
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+    )
+    .await;
+    // Parameters and +json suffixes are JSON too.
+    assert_eq!(
+        raw("{}", Some("application/json; charset=utf-8"))
+            .await
+            .unwrap()
+            .status(),
+        200
+    );
+
+    let big = json!({"initial_controls": vec![[4.905, 4.905]; 1000], "horizon": 1000});
+    let p = problem_of(s.post(&big).await, StatusCode::PAYLOAD_TOO_LARGE).await;
+    assert!(p["detail"].as_str().unwrap().contains("4096"));
+
+    problem_of(s.get("/nope").await, StatusCode::NOT_FOUND).await;
+    problem_of(s.get("/solve").await, StatusCode::METHOD_NOT_ALLOWED).await;
+}
+
+#[tokio::test]
+async fn a_full_queue_answers_503_with_retry_after_at_once() {
+    let s = Server::start(small(1, 1)).await;
+    let busy = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&slow(1500))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    let queued = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            tokio::time::sleep(Duration::from_millis(200)).await;
+            reqwest::Client::new()
+                .post(url)
+                .json(&json!({}))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(500)).await;
+    let t = Instant::now();
+    let res = s.post(&json!({})).await;
+    assert!(
+        t.elapsed() < Duration::from_millis(300),
+        "rejection took {:?}",
+        t.elapsed()
+    );
+    assert_eq!(res.headers()["retry-after"], "1");
+    let p = problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:overloaded");
+    assert_eq!(p["retry_after"], 1);
+
+    let r: Value = busy.await.unwrap().json().await.unwrap();
+    assert!(
+        r["solve_time_ms"].as_f64().unwrap() > 500.0,
+        "the blocker ran while we were rejected"
+    );
+    let r: Value = queued.await.unwrap().json().await.unwrap();
+    assert_eq!(r["status"], "converged");
+    assert!(
+        r["queue_time_ms"].as_f64().unwrap() > 500.0,
+        "{}",
+        r["queue_time_ms"]
+    );
+}
+
+#[tokio::test]
+async fn the_time_budget_returns_the_best_trajectory_so_far() {
+    let s = Server::default().await;
+    let t = Instant::now();
+    let res = s.post(&slow(200)).await;
+    assert_eq!(res.status(), 200);
+    let r: Value = res.json().await.unwrap();
+    assert_eq!(r["status"], "time_limit");
+    assert!(r["cost"].as_f64().unwrap() <= r["initial_cost"].as_f64().unwrap());
+    assert_eq!(r["states"].as_array().unwrap().len(), 10001);
+    assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
+
+    // The configured default applies when the request sets none.
+    let s = Server::start(Config {
+        default_time_limit_ms: 150,
+        ..Config::default()
+    })
+    .await;
+    let mut body = slow(1);
+    body["solver"]
+        .as_object_mut()
+        .unwrap()
+        .remove("time_limit_ms");
+    let r: Value = s.post(&body).await.json().await.unwrap();
+    assert_eq!(r["status"], "time_limit");
+    assert!(r["solve_time_ms"].as_f64().unwrap() < 1000.0);
+}
+
+#[tokio::test]
+async fn a_client_that_disconnects_cancels_its_solve() {
+    let s = Server::start(small(1, 0)).await;
+    let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let impatient = reqwest::Client::builder()
+        .timeout(Duration::from_millis(300))
+        .build()
+        .unwrap();
+    let gone = impatient
+        .post(s.url("/solve"))
+        .json(&slow(20_000))
+        .send()
+        .await;
+    assert!(gone.unwrap_err().is_timeout());
+
+    // The only worker must be free again well before the 20 s budget.
+    let t = Instant::now();
+    loop {
+        let res = s.post(&json!({"output": {"gains": false}})).await;
+        if res.status() == 200 {
+            break;
+        }
+        assert_eq!(res.status(), 503);
+        assert!(
+            t.elapsed() < Duration::from_secs(3),
+            "the abandoned solve kept its worker"
+        );
+        tokio::time::sleep(Duration::from_millis(50)).await;
+    }
+    // The worker counted it as cancelled (the metrics recorder is shared by
+    // every server in this process, hence the difference).
+    let cancelled_after = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    assert!(
+        cancelled_after >= cancelled_before + 1.0,
+        "{cancelled_before} -> {cancelled_after}"
+    );
+}
+
+/// The value of one Prometheus sample, 0 when absent.
+async fn counter(s: &Server, sample: &str) -> f64 {
+    let text = s.get("/metrics").await.text().await.unwrap();
+    text.lines()
+        .find_map(|l| l.strip_prefix(sample).and_then(|v| v.trim().parse().ok()))
+        .unwrap_or(0.0)
+}
+
+#[tokio::test]
+async fn metrics_count_requests_solves_and_rejections() {
+    let s = Server::default().await;
+    assert_eq!(s.post(&json!({})).await.status(), 200);
+    assert_eq!(s.post(&json!({"dt": 0})).await.status(), 422);
+    let res = s.get("/metrics").await;
+    assert_eq!(res.status(), 200);
+    let text = res.text().await.unwrap();
+    for needle in [
+        "http_requests_total{route=\"/solve\",status=\"200\"}",
+        "http_requests_total{route=\"/solve\",status=\"422\"}",
+        "solves_total{status=\"converged\"}",
+        "solve_rejections_total{reason=\"invalid\"}",
+        "solve_queue_depth",
+        "solve_queue_wait_seconds_bucket",
+        "solve_duration_seconds_bucket",
+        "solve_iterations_bucket",
+    ] {
+        assert!(text.contains(needle), "missing {needle} in\n{text}");
+    }
+}
+
+#[tokio::test]
+async fn docs_and_spec_are_served() {
+    let s = Server::default().await;
+    let spec: Value = s.get("/openapi.json").await.json().await.unwrap();
+    assert!(spec["paths"]["/solve"]["post"].is_object());
+    let docs = reqwest::get(s.url("/docs/")).await.unwrap();
+    assert_eq!(docs.status(), 200);
+    assert!(docs.text().await.unwrap().contains("swagger"));
+    assert_eq!(s.get("/healthz").await.status(), 200);
+    assert_eq!(s.get("/readyz").await.status(), 200);
+}
+
+#[tokio::test]
+async fn shutdown_drains_in_flight_solves_then_stops() {
+    let mut s = Server::start(Config {
+        shutdown_grace_secs: 5,
+        ..small(2, 4)
+    })
+    .await;
+    let inflight = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&slow(800))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    s.stop.take().unwrap().send(()).unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    // Draining: not ready, no new solves, but the running one finishes.
+    problem_of(s.get("/readyz").await, StatusCode::SERVICE_UNAVAILABLE).await;
+    let p = problem_of(s.post(&json!({})).await, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:shutting-down");
+    let r: Value = inflight.await.unwrap().json().await.unwrap();
+    assert_eq!(r["status"], "time_limit", "the solve ran to its own budget");
+    tokio::time::timeout(Duration::from_secs(3), s.task)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+}
+
+#[tokio::test]
+async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
+    let mut s = Server::start(Config {
+        shutdown_grace_secs: 0,
+        ..small(1, 1)
+    })
+    .await;
+    let inflight = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&slow(20_000))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let t = Instant::now();
+    s.stop.take().unwrap().send(()).unwrap();
+    let r: Value = inflight.await.unwrap().json().await.unwrap();
+    assert_eq!(r["status"], "cancelled");
+    assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
+    tokio::time::timeout(Duration::from_secs(3), s.task)
+        .await
+        .unwrap()
+        .unwrap()
+        .unwrap();
+}
