@@ -24,9 +24,10 @@ pub const MAX_ITERATIONS: usize = 10_000;
 /// Largest accepted number of obstacles.
 pub const MAX_OBSTACLES: usize = 100;
 
-/// A trajectory-optimisation problem for the planar quadrotor: minimise
-/// `Σ_k [(x_k − x_goal)ᵀQ(x_k − x_goal) + u_kᵀRu_k + Σ_j q_j·exp(−‖p_k − c_j‖)]
-/// + (x_N − x_goal)ᵀQ_f(x_N − x_goal)` subject to the Euler-discretised
+/// A trajectory-optimisation problem for the planar quadrotor.
+///
+/// Minimise `Σ_k [(x_k − x_goal)ᵀQ(x_k − x_goal) + u_kᵀRu_k + Σ_j q_j·exp(−‖p_k − c_j‖)]`
+/// plus `(x_N − x_goal)ᵀQ_f(x_N − x_goal)`, subject to the Euler-discretised
 /// dynamics, from `initial_state`. All fields are optional; the defaults are
 /// the seed scenario.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]

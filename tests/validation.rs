@@ -194,12 +194,11 @@ proptest! {
         let doc = json!({"dt": dt, "horizon": horizon, "model": {"mass": mass},
                          "initial_state": x0, "obstacles": [{"center": [0, 0], "weight": weight}],
                          "solver": {"max_iterations": 5}});
-        if let Ok(spec) = parse(doc.to_string().as_bytes()) {
-            if spec.validate(&Limits::default()).is_ok() {
-                if let Ok(r) = solve(&spec, None, &Default::default()) {
-                    prop_assert!(r.cost.is_finite());
-                }
-            }
+        if let Ok(spec) = parse(doc.to_string().as_bytes())
+            && spec.validate(&Limits::default()).is_ok()
+            && let Ok(r) = solve(&spec, None, &Default::default())
+        {
+            prop_assert!(r.cost.is_finite());
         }
     }
 }

@@ -1,0 +1,89 @@
+#!/usr/bin/env python3
+"""Regenerate the figures in docs/ from the example problems.
+
+Each figure is made with the project's own code: the release binary solves
+the problem (``ilqr-service solve PROBLEM --output RESULT.json``) and
+:func:`ilqr_client.plot.save_figure` draws the result (trajectory on the
+left, cost per iteration on the right).
+
+    cargo build --release
+    python3 -m venv /tmp/figvenv
+    /tmp/figvenv/bin/pip install -e 'clients/python[plot]'
+    /tmp/figvenv/bin/python docs/make_figures.py
+
+Environment:
+    ILQR_SERVICE_BIN  the binary to run (default: target/release/ilqr-service
+                      in this repository)
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import matplotlib
+
+matplotlib.use("Agg")  # no display needed; save_figure draws on a bare Figure anyway
+
+from ilqr_client import Problem, SolveResult  # noqa: E402
+from ilqr_client.plot import save_figure  # noqa: E402
+
+REPO = Path(__file__).resolve().parent.parent
+DOCS = REPO / "docs"
+EXAMPLES = REPO / "examples"
+
+#: (figure written to docs/, problem in examples/)
+FIGURES = [
+    ("seed.png", "seed.json"),
+    ("three_obstacles.png", "three_obstacles.json"),
+]
+
+DPI = 110
+MAX_BYTES = 150_000
+
+
+def service_binary() -> Path:
+    """The ilqr-service binary: $ILQR_SERVICE_BIN, else the release build of this repository."""
+    configured = os.environ.get("ILQR_SERVICE_BIN")
+    binary = Path(configured) if configured else REPO / "target" / "release" / "ilqr-service"
+    if not binary.is_file():
+        sys.exit(f"error: {binary} not found: run `cargo build --release` or set ILQR_SERVICE_BIN")
+    return binary
+
+
+def solve(binary: Path, problem_path: Path, workdir: Path) -> SolveResult:
+    """Solve a problem file with the CLI and parse the full result JSON it writes."""
+    result_path = workdir / (problem_path.stem + ".result.json")
+    run = subprocess.run(
+        [str(binary), "solve", str(problem_path), "--output", str(result_path)],
+        capture_output=True, text=True,
+    )
+    if run.returncode != 0:
+        sys.exit(f"error: {binary.name} solve {problem_path} failed ({run.returncode}):\n{run.stderr}")
+    print(run.stdout, end="")
+    return SolveResult.from_dict(json.loads(result_path.read_text()))
+
+
+def main() -> int:
+    binary = service_binary()
+    with tempfile.TemporaryDirectory(prefix="ilqr-figures-") as tmp:
+        for figure_name, problem_name in FIGURES:
+            problem_path = EXAMPLES / problem_name
+            print(f"--- {problem_path.relative_to(REPO)}")
+            result = solve(binary, problem_path, Path(tmp))
+            problem = Problem.from_dict(json.loads(problem_path.read_text()))
+            out = DOCS / figure_name
+            save_figure(result, problem, out, dpi=DPI)
+            size = out.stat().st_size
+            print(f"wrote {out.relative_to(REPO)} ({size / 1000:.0f} kB)")
+            if size > MAX_BYTES:
+                print(f"warning: {out.name} is larger than {MAX_BYTES / 1000:.0f} kB", file=sys.stderr)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,64 @@
+#!/usr/bin/env bash
+# The whole test suite, as CI runs it (`.ci/run` calls this) and as the
+# README tells a newcomer to run it. Installs what it needs into ./.venv.
+#
+#   1. cargo fmt --check, cargo clippy -D warnings
+#   2. Rust tests (solver, validation, HTTP over loopback, OpenAPI freshness)
+#   3. Python client tests against the real release binary
+#   4. hadolint on the Dockerfile
+#   5. schemathesis against the running release binary
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+step() { printf '\n==> %s\n' "$*"; }
+
+step "Python tools (.venv)"
+if [ ! -x .venv/bin/python ]; then
+  python3 -m venv .venv
+fi
+.venv/bin/python -m pip install --quiet --disable-pip-version-check \
+  -r scripts/requirements-test.txt -e 'clients/python[test,plot]'
+
+step "cargo fmt --check"
+cargo fmt --all -- --check
+
+step "cargo clippy -D warnings"
+cargo clippy --workspace --all-targets --release -- -D warnings
+
+step "Rust tests (release: the numbers and time budgets are the shipped ones)"
+cargo test --workspace --release
+
+step "release binary"
+cargo build --release --bin ilqr-service
+BIN="$PWD/target/release/ilqr-service"
+
+step "OpenAPI freshness (the CLI prints the same document)"
+"$BIN" openapi | diff -u openapi/openapi.json - \
+  || { echo "openapi/openapi.json is stale: run UPDATE_OPENAPI=1 cargo test --release --test openapi"; exit 1; }
+
+step "Python client tests against the release binary"
+ILQR_SERVICE_BIN="$BIN" .venv/bin/python -m pytest clients/python/tests -q
+
+step "hadolint Dockerfile"
+.venv/bin/hadolint Dockerfile && echo "hadolint: clean"
+
+step "schemathesis against the running release binary"
+PORT=$(.venv/bin/python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+# Short budgets: generated problems may ask for 10000 steps and iterations.
+"$BIN" serve --bind "127.0.0.1:$PORT" --default-time-limit-ms 200 --max-time-limit-ms 500 \
+  --queue-capacity 64 2>/tmp/ilqr-schemathesis-server.log &
+SERVER=$!
+trap 'kill $SERVER 2>/dev/null || true' EXIT
+for _ in $(seq 50); do
+  "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null && break
+  sleep 0.1
+done
+.venv/bin/schemathesis run openapi/openapi.json --url "http://127.0.0.1:$PORT" \
+  --checks not_a_server_error,status_code_conformance,content_type_conformance,response_headers_conformance,response_schema_conformance \
+  --max-examples 40 --seed 1 --no-color
+kill $SERVER
+wait $SERVER 2>/dev/null || true
+trap - EXIT
+
+echo
+echo "all suites passed"
