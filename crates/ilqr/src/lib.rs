@@ -38,7 +38,7 @@
 //! let cost = Objective::new()
 //!     .with_stage(StateTracking { goal, weights: SVector::repeat(1.0) })
 //!     .with_stage(ControlEffort { weights: Vector2::repeat(0.1) })
-//!     .with_terminal(TerminalTracking { goal, weights: SVector::repeat(100.0) });
+//!     .with_terminal(TerminalTracking { goal, weights: SVector::repeat(1e4) });
 //! let problem = Problem { dynamics: Euler { model, dt: 0.05 }, cost, x0: SVector::zeros(), horizon: 40 };
 //! let hover = vec![Vector2::repeat(9.81 / 2.0); 40];
 //!

@@ -36,7 +36,7 @@ use nalgebra::{SMatrix, SVector};
 
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 use crate::dynamics::DiscreteDynamics;
-use crate::kernels::{mul, tr_mul};
+use crate::kernels::{cholesky, cholesky_solve, mul, tr_mul};
 
 /// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
 /// `dynamics`, starting from `x0`.
@@ -549,7 +549,18 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
     let V_xx_B = mul(V_xx, B);
     let Q_x = l.l_x + tr_mul(A, V_x);
     let Q_u = l.l_u + tr_mul(B, V_x);
-    let Q_xx = l.l_xx + tr_mul(A, &V_xx_A);
+    // Q_xx is symmetric: compute the lower triangle only (it is read below
+    // only there).
+    let mut Q_xx = l.l_xx;
+    for j in 0..NX {
+        for i in j..NX {
+            let mut acc = 0.0;
+            for k in 0..NX {
+                acc += A[(k, i)] * V_xx_A[(k, j)];
+            }
+            Q_xx[(i, j)] += acc;
+        }
+    }
     let Q_uu = l.l_uu + tr_mul(B, &V_xx_B);
     let Q_ux = l.l_ux + tr_mul(B, &V_xx_A);
 
@@ -557,24 +568,33 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
     for i in 0..NU {
         Q_uu_reg[(i, i)] += mu;
     }
-    let chol = Q_uu_reg.cholesky()?;
-    let d = -chol.solve(&Q_u);
-    let K = -chol.solve(&Q_ux);
+    let L = cholesky(&Q_uu_reg)?;
+    let d = -cholesky_solve(&L, &Q_u);
+    let K = -cholesky_solve(&L, &Q_ux);
     if !all_finite(&d) || !all_finite(&K) {
         return None;
     }
 
+    // Eqs. 47–48: V_xx = Q_xx + Kᵀ(Q_uu K + Q_ux) + Q_uxᵀK, symmetric by
+    // construction, so the lower triangle is computed and mirrored.
     let Q_uu_d = mul(&Q_uu, &d);
     let V_x = Q_x + tr_mul(&K, &(Q_uu_d + Q_u)) + tr_mul(&Q_ux, &d);
-    let K_Q_ux = tr_mul(&K, &Q_ux);
-    let V_xx = Q_xx + tr_mul(&K, &mul(&Q_uu, &K)) + K_Q_ux + K_Q_ux.transpose();
+    let M = mul(&Q_uu, &K) + Q_ux;
+    let mut V_xx = SMatrix::<f64, NX, NX>::zeros();
+    for j in 0..NX {
+        for i in j..NX {
+            let mut acc = Q_xx[(i, j)];
+            for k in 0..NU {
+                acc += K[(k, i)] * M[(k, j)] + Q_ux[(k, i)] * K[(k, j)];
+            }
+            V_xx[(i, j)] = acc;
+            V_xx[(j, i)] = acc;
+        }
+    }
     Some(RiccatiStep {
         K,
         d,
-        value: Value {
-            V_x,
-            V_xx: (V_xx + V_xx.transpose()) * 0.5,
-        },
+        value: Value { V_x, V_xx },
         dv1: d.dot(&Q_u),
         dv2: 0.5 * d.dot(&Q_uu_d),
     })
