@@ -324,12 +324,16 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut delta = 1.0;
         let mut iterations = 0;
         let mut converged = false;
+        let mut stale = true;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
-            //    when a step is accepted, but every accepted step ends an
-            //    iteration, so each iteration starts with fresh ones.
-            self.linearize(problem);
+            //    when a step was accepted; after a rejected step the same
+            //    ones are reused with a larger μ.
+            if stale {
+                self.linearize(problem);
+                stale = false;
+            }
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
             let bw = loop {
@@ -403,6 +407,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 }
             }
             if accepted {
+                stale = true;
                 decrease(&mut mu, &mut delta, options);
             } else {
                 increase(&mut mu, &mut delta, options);
