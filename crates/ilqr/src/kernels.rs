@@ -56,8 +56,7 @@ pub(crate) fn cholesky<const N: usize>(m: &SMatrix<f64, N, N>) -> Option<SMatrix
         for k in 0..j {
             d -= l[(j, k)] * l[(j, k)];
         }
-        // `!(d > 0)` also rejects NaN.
-        if !(d > 0.0) {
+        if d.is_nan() || d <= 0.0 {
             return None;
         }
         let d = d.sqrt();
