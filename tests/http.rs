@@ -12,9 +12,15 @@ use tokio::net::TcpListener;
 use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 
-/// A solve that runs until its time limit: a long horizon and no tolerance.
+/// A solve that runs until its time limit: a long horizon, no tolerance,
+/// and 100 distant obstacles that make every iteration slow (~0.1 s) without
+/// shaping the solution, so it neither converges nor stalls (`no_progress`)
+/// within the few seconds these tests allow.
 fn slow(time_limit_ms: u64) -> Value {
-    json!({"horizon": 10000, "dt": 0.0005,
+    let obstacles: Vec<Value> = (0..100)
+        .map(|j| json!({"center": [1000.0 + f64::from(j), 1000.0], "weight": 1.0}))
+        .collect();
+    json!({"horizon": 10000, "dt": 0.0005, "obstacles": obstacles,
            "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": time_limit_ms},
            "output": {"gains": false, "trace": false}})
 }
