@@ -1,99 +1,218 @@
 //! Small dense kernels for the Riccati recursion.
 //!
-//! nalgebra's generic `*` and `tr_mul` on fixed sizes are not fully unrolled
-//! and call out of line; these plain loops over const bounds are, and LLVM
-//! vectorises the contiguous (column-major) inner loop. Measured on the seed
-//! problem they make the backward pass several times faster (BENCHMARKS.md).
+//! Everything here works on nalgebra's column-major storage directly
+//! (`[[f64; R]; C]`, one array per column) with loop bounds known at compile
+//! time, mostly as `y += a·x` over a column ("axpy"), the shape LLVM unrolls
+//! and vectorises well for tiny matrices. nalgebra's generic products on
+//! fixed sizes call out of line and were most of the backward pass.
+//!
+//! Three choices that matter for speed (measured in BENCHMARKS.md):
+//!
+//! * Products with the dynamics Jacobians skip exact zeros. `A = I + dt·∂f/∂x`
+//!   and `B = dt·∂f/∂u` of mechanical models are mostly zeros (for the planar
+//!   quadrotor 11 of 36 entries of `A` and 6 of 12 of `B` are non-zero), so
+//!   `V_xx·A` and `Aᵀ·V_xx·A` shrink to a third. The test is per entry and at
+//!   run time: dense models lose only the compare, and the solver stays
+//!   ignorant of any particular model. Skipping `0·x` changes a result only
+//!   when `x` is infinite or NaN, and the Riccati step rejects non-finite
+//!   gains either way.
+//! * Symmetric results (`Q_xx`, `V_xx`) are formed as lower triangles and
+//!   mirrored: half the work, and exactly symmetric whatever the rounding.
+//! * `Q_uu + μI` is factorised as `L D Lᵀ`, with one division per pivot and
+//!   no square root: the factorisation sits on the backward pass's critical
+//!   path (each knot needs the previous knot's `V_xx`), so its latency costs
+//!   more than its flops.
 
-use nalgebra::SMatrix;
+// Index loops over const bounds are the readable form of these kernels (and
+// the one LLVM unrolls); iterator chains would hide the subscripts.
+#![allow(clippy::needless_range_loop)]
 
-/// `a · b`.
+/// One column of an `N`-row matrix.
+pub(crate) type Col<const N: usize> = [f64; N];
+
+/// `y += a·x`.
 #[inline(always)]
-pub(crate) fn mul<const R: usize, const K: usize, const C: usize>(
-    a: &SMatrix<f64, R, K>,
-    b: &SMatrix<f64, K, C>,
-) -> SMatrix<f64, R, C> {
-    let mut out = SMatrix::<f64, R, C>::zeros();
+pub(crate) fn axpy<const N: usize>(y: &mut Col<N>, a: f64, x: &Col<N>) {
+    for i in 0..N {
+        y[i] += a * x[i];
+    }
+}
+
+/// `xᵀ·y`.
+#[inline(always)]
+pub(crate) fn dot<const N: usize>(x: &Col<N>, y: &Col<N>) -> f64 {
+    let mut acc = 0.0;
+    for i in 0..N {
+        acc += x[i] * y[i];
+    }
+    acc
+}
+
+/// `out += m·n` (`m` is `R×K`, `n` is `K×C`, both column-major). With
+/// `SPARSE`, the zeros of `n` are skipped.
+#[inline(always)]
+pub(crate) fn add_mul<const R: usize, const K: usize, const C: usize, const SPARSE: bool>(
+    out: &mut [Col<R>; C],
+    m: &[Col<R>; K],
+    n: &[Col<K>; C],
+) {
     for j in 0..C {
         for k in 0..K {
-            let bkj = b[(k, j)];
-            for i in 0..R {
-                out[(i, j)] += a[(i, k)] * bkj;
+            let nkj = n[j][k];
+            if SPARSE && nkj == 0.0 {
+                continue;
             }
+            axpy(&mut out[j], nkj, &m[k]);
         }
     }
-    out
 }
 
-/// `aᵀ · b`.
+/// `m·n` for a square, sparse `n` with a non-zero diagonal (a Jacobian
+/// `I + dt·∂f/∂x`): the diagonal term assigns each output column and the
+/// other non-zeros are added, so the result never needs zeroing first.
 #[inline(always)]
-pub(crate) fn tr_mul<const R: usize, const K: usize, const C: usize>(
-    a: &SMatrix<f64, K, R>,
-    b: &SMatrix<f64, K, C>,
-) -> SMatrix<f64, R, C> {
-    let mut out = SMatrix::<f64, R, C>::zeros();
-    for j in 0..C {
-        for i in 0..R {
-            let mut acc = 0.0;
-            for k in 0..K {
-                acc += a[(k, i)] * b[(k, j)];
-            }
-            out[(i, j)] = acc;
-        }
-    }
-    out
-}
-
-/// Cholesky factor `L` (lower, `m = L Lᵀ`) of a small symmetric matrix, or
-/// `None` when it is not positive definite. Plain loops: for the 2×2 `Q_uu`
-/// this is a handful of flops, where nalgebra's generic decomposition
-/// carries bookkeeping for any size.
-#[inline(always)]
-pub(crate) fn cholesky<const N: usize>(m: &SMatrix<f64, N, N>) -> Option<SMatrix<f64, N, N>> {
-    let mut l = SMatrix::<f64, N, N>::zeros();
+pub(crate) fn mul_square_sparse<const R: usize, const N: usize>(
+    m: &[Col<R>; N],
+    n: &[Col<N>; N],
+) -> [Col<R>; N] {
+    let mut out: [Col<R>; N] = std::array::from_fn(|j| m[j].map(|x| x * n[j][j]));
     for j in 0..N {
-        let mut d = m[(j, j)];
-        for k in 0..j {
-            d -= l[(j, k)] * l[(j, k)];
+        for k in 0..N {
+            let nkj = n[j][k];
+            if k != j && nkj != 0.0 {
+                axpy(&mut out[j], nkj, &m[k]);
+            }
         }
-        if d.is_nan() || d <= 0.0 {
+    }
+    out
+}
+
+/// `mᵀ`.
+#[inline(always)]
+pub(crate) fn transpose<const R: usize, const C: usize>(m: &[Col<R>; C]) -> [Col<C>; R] {
+    let mut t = [[0.0; C]; R];
+    for (j, col) in m.iter().enumerate() {
+        for (i, v) in col.iter().enumerate() {
+            t[i][j] = *v;
+        }
+    }
+    t
+}
+
+/// The lower triangle (row ≥ column) of `out += m·n`; the strict upper
+/// triangle of `out` is left as it was. Half the work of [`add_mul`] for a
+/// product known to be symmetric.
+#[inline(always)]
+pub(crate) fn add_mul_lower<const N: usize, const K: usize, const SPARSE: bool>(
+    out: &mut [Col<N>; N],
+    m: &[Col<N>; K],
+    n: &[Col<K>; N],
+) {
+    for j in 0..N {
+        for k in 0..K {
+            let nkj = n[j][k];
+            if SPARSE && nkj == 0.0 {
+                continue;
+            }
+            for i in j..N {
+                out[j][i] += nkj * m[k][i];
+            }
+        }
+    }
+}
+
+/// Copy the lower triangle of a square matrix onto its upper triangle.
+#[inline(always)]
+pub(crate) fn mirror_lower<const N: usize>(m: &mut [Col<N>; N]) {
+    for j in 0..N {
+        for i in j + 1..N {
+            m[i][j] = m[j][i];
+        }
+    }
+}
+
+/// `L D Lᵀ` factorisation of a small symmetric matrix (`L` unit lower
+/// triangular), or `None` when it is not positive definite. Returns `L` and
+/// `1/D`. No square roots, and one division per pivot: the factorisation
+/// sits on the backward pass's critical path, so its latency matters more
+/// than its flops.
+#[inline(always)]
+pub(crate) fn ldlt<const N: usize>(m: &[Col<N>; N]) -> Option<([Col<N>; N], Col<N>)> {
+    // l[j][i] = L[i, j] (column-major); the diagonal of L is 1, not stored.
+    let mut l = [[0.0; N]; N];
+    let mut d = [0.0; N];
+    let mut d_inv = [0.0; N];
+    for j in 0..N {
+        let mut dj = m[j][j];
+        for k in 0..j {
+            dj -= l[k][j] * l[k][j] * d[k];
+        }
+        if dj.is_nan() || dj <= 0.0 {
             return None;
         }
-        let d = d.sqrt();
-        l[(j, j)] = d;
+        d[j] = dj;
+        d_inv[j] = 1.0 / dj;
         for i in j + 1..N {
-            let mut s = m[(i, j)];
+            let mut s = m[j][i];
             for k in 0..j {
-                s -= l[(i, k)] * l[(j, k)];
+                s -= l[k][i] * l[k][j] * d[k];
             }
-            l[(i, j)] = s / d;
+            l[j][i] = s * d_inv[j];
         }
     }
-    Some(l)
+    Some((l, d_inv))
 }
 
-/// Solve `L Lᵀ X = B` by forward and back substitution.
+/// Solve `L D Lᵀ x = b` for one vector.
 #[inline(always)]
-pub(crate) fn cholesky_solve<const N: usize, const C: usize>(
-    l: &SMatrix<f64, N, N>,
-    b: &SMatrix<f64, N, C>,
-) -> SMatrix<f64, N, C> {
+pub(crate) fn ldlt_solve_vec<const N: usize>(
+    l: &[Col<N>; N],
+    d_inv: &Col<N>,
+    b: &Col<N>,
+) -> Col<N> {
     let mut x = *b;
-    for c in 0..C {
-        for i in 0..N {
-            let mut s = x[(i, c)];
-            for k in 0..i {
-                s -= l[(i, k)] * x[(k, c)];
-            }
-            x[(i, c)] = s / l[(i, i)];
+    for i in 0..N {
+        for k in 0..i {
+            x[i] -= l[k][i] * x[k];
         }
-        for i in (0..N).rev() {
-            let mut s = x[(i, c)];
-            for k in i + 1..N {
-                s -= l[(k, i)] * x[(k, c)];
-            }
-            x[(i, c)] = s / l[(i, i)];
+    }
+    for i in 0..N {
+        x[i] *= d_inv[i];
+    }
+    for i in (0..N).rev() {
+        for k in i + 1..N {
+            x[i] -= l[i][k] * x[k];
         }
     }
     x
+}
+
+/// Solve `X·(L D Lᵀ) = B` for `X` (`R×N`), column by column, so that every
+/// operation is an axpy over a whole column of length `R`.
+#[inline(always)]
+pub(crate) fn ldlt_solve_right<const R: usize, const N: usize>(
+    l: &[Col<N>; N],
+    d_inv: &Col<N>,
+    b: &[Col<R>; N],
+) -> [Col<R>; N] {
+    // Y Lᵀ = B: Y[:, j] = B[:, j] − Σ_{i<j} L[j, i]·Y[:, i].
+    let mut y = *b;
+    for j in 0..N {
+        for i in 0..j {
+            let yi = y[i];
+            axpy(&mut y[j], -l[i][j], &yi);
+        }
+    }
+    // Z D = Y.
+    for (col, s) in y.iter_mut().zip(d_inv) {
+        col.iter_mut().for_each(|v| *v *= s);
+    }
+    // X L = Z: X[:, j] = Z[:, j] − Σ_{i>j} L[i, j]·X[:, i].
+    for j in (0..N).rev() {
+        for i in j + 1..N {
+            let xi = y[i];
+            axpy(&mut y[j], -l[j][i], &xi);
+        }
+    }
+    y
 }

@@ -36,7 +36,10 @@ use nalgebra::{SMatrix, SVector};
 
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 use crate::dynamics::DiscreteDynamics;
-use crate::kernels::{cholesky, cholesky_solve, mul, tr_mul};
+use crate::kernels::{
+    add_mul, add_mul_lower, axpy, dot, ldlt, ldlt_solve_right, ldlt_solve_vec, mirror_lower,
+    mul_square_sparse, transpose,
+};
 
 /// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
 /// `dynamics`, starting from `x0`.
@@ -453,18 +456,28 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     #[allow(non_snake_case)]
     fn backward(&mut self, mu: f64) -> Option<Backward> {
         let n = self.us.len();
-        let mut value = Value {
+        // Ping-pong between two value functions: knot k reads one and
+        // writes the other.
+        let mut next = Value {
             V_x: self.terminal.l_x,
             V_xx: self.terminal.l_xx,
         };
+        let mut here = next;
         let (mut dv1, mut dv2) = (0.0, 0.0);
         for k in (0..n).rev() {
-            let step = riccati_step(&self.A[k], &self.B[k], &self.stage[k], &value, mu)?;
-            dv1 += step.dv1;
-            dv2 += step.dv2;
-            self.K[k] = step.K;
-            self.d[k] = step.d;
-            value = step.value;
+            let (a, b) = riccati_step_into(
+                &self.A[k],
+                &self.B[k],
+                &self.stage[k],
+                &next,
+                mu,
+                &mut self.K[k],
+                &mut self.d[k],
+                &mut here,
+            )?;
+            dv1 += a;
+            dv2 += b;
+            std::mem::swap(&mut next, &mut here);
         }
         Some(Backward { dv1, dv2 })
     }
@@ -540,8 +553,14 @@ pub struct RiccatiStep<const NX: usize, const NU: usize> {
 /// update uses the unregularised `Q_uu` in the form of eqs. 47–48, which stays
 /// consistent for any `K` and `d`. Returns `None` when `Q_uu + μI` is not
 /// positive definite (or the gains are not finite).
+///
+/// The arithmetic is arranged for speed (see `kernels`): every product is a
+/// sum of column axpys, products with `A` and `B` skip their zeros, the
+/// symmetric `Q_xx` and `V_xx` are formed as lower triangles (so `V_xx` is
+/// exactly symmetric, whatever the rounding), `Q_uu + μI` is factorised as
+/// `L D Lᵀ` (no square roots on the critical path), and `K` is formed
+/// transposed (`Kᵀ = −Q_xu (Q_uu + μI)⁻¹`, `NX×NU`) so its columns are long.
 #[allow(non_snake_case)]
-#[inline]
 pub fn riccati_step<const NX: usize, const NU: usize>(
     A: &SMatrix<f64, NX, NX>,
     B: &SMatrix<f64, NX, NU>,
@@ -549,60 +568,114 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
     next: &Value<NX>,
     mu: f64,
 ) -> Option<RiccatiStep<NX, NU>> {
-    let Value { V_x, V_xx } = next;
-    let V_xx_A = mul(V_xx, A);
-    let V_xx_B = mul(V_xx, B);
-    let Q_x = l.l_x + tr_mul(A, V_x);
-    let Q_u = l.l_u + tr_mul(B, V_x);
-    // Q_xx is symmetric: compute the lower triangle only (it is read below
-    // only there).
-    let mut Q_xx = l.l_xx;
-    for j in 0..NX {
-        for i in j..NX {
-            let mut acc = 0.0;
-            for k in 0..NX {
-                acc += A[(k, i)] * V_xx_A[(k, j)];
-            }
-            Q_xx[(i, j)] += acc;
+    let mut out = RiccatiStep {
+        K: SMatrix::zeros(),
+        d: SVector::zeros(),
+        value: Value {
+            V_x: SVector::zeros(),
+            V_xx: SMatrix::zeros(),
+        },
+        dv1: 0.0,
+        dv2: 0.0,
+    };
+    let (dv1, dv2) = riccati_step_into(A, B, l, next, mu, &mut out.K, &mut out.d, &mut out.value)?;
+    out.dv1 = dv1;
+    out.dv2 = dv2;
+    Some(out)
+}
+
+/// [`riccati_step`] writing its results in place, so the backward pass
+/// copies nothing: `K`, `d` go straight into the solver's gain buffers and
+/// `value` into the other half of a ping-pong pair. Returns `(dᵀQ_u,
+/// ½dᵀQ_uu d)`. The outputs are unspecified when it returns `None`.
+#[allow(non_snake_case, clippy::too_many_arguments)]
+#[inline(always)]
+fn riccati_step_into<const NX: usize, const NU: usize>(
+    A: &SMatrix<f64, NX, NX>,
+    B: &SMatrix<f64, NX, NU>,
+    l: &StageExpansion<NX, NU>,
+    next: &Value<NX>,
+    mu: f64,
+    K_out: &mut SMatrix<f64, NU, NX>,
+    d_out: &mut SVector<f64, NU>,
+    value: &mut Value<NX>,
+) -> Option<(f64, f64)> {
+    const SPARSE: bool = true;
+    const DENSE: bool = false;
+    let a = &A.data.0;
+    let b = &B.data.0;
+    let v = &next.V_xx.data.0;
+    let v_x = &next.V_x.data.0[0];
+
+    // P = V_xx·A and V_xx·B, shared by eqs. 33–35.
+    let P = mul_square_sparse(v, a);
+    let mut VB = [[0.0; NX]; NU];
+    add_mul::<NX, NX, NU, SPARSE>(&mut VB, v, b);
+    // Pᵀ = Aᵀ·V_xx, because V_xx is symmetric.
+    let Pt = transpose(&P);
+
+    // Eq. 33: Q_xx = l_xx + Aᵀ V_xx A = l_xx + Pᵀ·A, lower triangle only,
+    // built where V_xx will be (eq. 48 adds to it).
+    let V_xx = &mut value.V_xx.data.0;
+    *V_xx = l.l_xx.data.0;
+    add_mul_lower::<NX, NX, SPARSE>(V_xx, &Pt, a);
+    // Eq. 35, transposed: Q_xu = l_uxᵀ + Aᵀ V_xx B = l_uxᵀ + Pᵀ·B.
+    let mut Q_xu = transpose(&l.l_ux.data.0);
+    add_mul::<NX, NX, NU, SPARSE>(&mut Q_xu, &Pt, b);
+    // Eq. 34: Q_uu = l_uu + Bᵀ V_xx B.
+    let mut Q_uu = l.l_uu.data.0;
+    for j in 0..NU {
+        for i in 0..NU {
+            Q_uu[j][i] += dot(&b[i], &VB[j]);
         }
     }
-    let Q_uu = l.l_uu + tr_mul(B, &V_xx_B);
-    let Q_ux = l.l_ux + tr_mul(B, &V_xx_A);
-
-    let mut Q_uu_reg = Q_uu;
-    for i in 0..NU {
-        Q_uu_reg[(i, i)] += mu;
+    // Eqs. 31–32: Q_x = l_x + Aᵀ V_x (built where V_x will be), Q_u = l_u + Bᵀ V_x.
+    let V_x = &mut value.V_x.data.0[0];
+    *V_x = l.l_x.data.0[0];
+    for (i, q) in V_x.iter_mut().enumerate() {
+        *q += dot(&a[i], v_x);
     }
-    let L = cholesky(&Q_uu_reg)?;
-    let d = -cholesky_solve(&L, &Q_u);
-    let K = -cholesky_solve(&L, &Q_ux);
-    if !all_finite(&d) || !all_finite(&K) {
+    let mut Q_u = l.l_u.data.0[0];
+    for (i, q) in Q_u.iter_mut().enumerate() {
+        *q += dot(&b[i], v_x);
+    }
+
+    // Eqs. 43–44 with Q_uu + μI: d = −(Q_uu + μI)⁻¹Q_u, Kᵀ = −Q_xu(Q_uu + μI)⁻¹.
+    let mut Q_uu_reg = Q_uu;
+    for (i, col) in Q_uu_reg.iter_mut().enumerate() {
+        col[i] += mu;
+    }
+    let (L, D_inv) = ldlt(&Q_uu_reg)?;
+    let d = ldlt_solve_vec(&L, &D_inv, &Q_u).map(|x| -x);
+    let Kt = ldlt_solve_right(&L, &D_inv, &Q_xu).map(|col| col.map(|x| -x));
+    if !d.iter().chain(Kt.iter().flatten()).all(|x| x.is_finite()) {
         return None;
     }
 
-    // Eqs. 47–48: V_xx = Q_xx + Kᵀ(Q_uu K + Q_ux) + Q_uxᵀK, symmetric by
-    // construction, so the lower triangle is computed and mirrored.
-    let Q_uu_d = mul(&Q_uu, &d);
-    let V_x = Q_x + tr_mul(&K, &(Q_uu_d + Q_u)) + tr_mul(&Q_ux, &d);
-    let M = mul(&Q_uu, &K) + Q_ux;
-    let mut V_xx = SMatrix::<f64, NX, NX>::zeros();
-    for j in 0..NX {
-        for i in j..NX {
-            let mut acc = Q_xx[(i, j)];
-            for k in 0..NU {
-                acc += K[(k, i)] * M[(k, j)] + Q_ux[(k, i)] * K[(k, j)];
-            }
-            V_xx[(i, j)] = acc;
-            V_xx[(j, i)] = acc;
+    // Eq. 47: V_x = Q_x + Kᵀ(Q_uu d + Q_u) + Q_uxᵀ d.
+    let mut Q_uu_d = [0.0; NU];
+    for (j, col) in Q_uu.iter().enumerate() {
+        for i in 0..NU {
+            Q_uu_d[i] += col[i] * d[j];
         }
     }
-    Some(RiccatiStep {
-        K,
-        d,
-        value: Value { V_x, V_xx },
-        dv1: d.dot(&Q_u),
-        dv2: 0.5 * d.dot(&Q_uu_d),
-    })
+    for i in 0..NU {
+        axpy(V_x, Q_uu_d[i] + Q_u[i], &Kt[i]);
+        axpy(V_x, d[i], &Q_xu[i]);
+    }
+    // Eq. 48: V_xx = Q_xx + Kᵀ(Q_uu K + Q_ux) + Q_uxᵀK = Q_xx + Kᵀ·Mtᵀ + Q_xu·K
+    // with Mt = KᵀQ_uu + Q_xu. It is symmetric, so the lower triangle is
+    // computed and mirrored.
+    let mut Mt = Q_xu;
+    add_mul::<NX, NU, NU, DENSE>(&mut Mt, &Kt, &Q_uu);
+    let K = transpose(&Kt);
+    add_mul_lower::<NX, NU, DENSE>(V_xx, &Kt, &transpose(&Mt));
+    add_mul_lower::<NX, NU, DENSE>(V_xx, &Q_xu, &K);
+    mirror_lower(V_xx);
+
+    K_out.data.0 = K;
+    d_out.data.0[0] = d;
+    Some((dot(&d, &Q_u), 0.5 * dot(&d, &Q_uu_d)))
 }
 
 /// Roll `us` out from `xs[0]` into `xs`; returns the total cost (NaN or ∞
