@@ -64,8 +64,9 @@ pub struct Options {
     /// converged when a full step (α = 1) reduced the cost by less than
     /// `tolerance·|J|`, or when the model predicts a full step would.
     pub tolerance: f64,
-    /// Wall-clock budget; `None` for no limit. Checked once per iteration, so
-    /// a solve can overrun it by about one iteration.
+    /// Wall-clock budget; `None` for no limit. Checked once per iteration
+    /// and between the rollouts of a line search, so a solve can overrun it
+    /// by one linearisation, backward pass and rollout.
     pub time_limit: Option<Duration>,
     /// Initial regularisation μ (iLQG.m starts at 1: the first steps from a
     /// poor initial guess are damped, which here saves iterations).
@@ -323,6 +324,17 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         }
         let initial_cost = cost;
 
+        // Cancellation and the time budget, polled once per iteration and
+        // between the rollouts of a line search.
+        let interrupted = || {
+            if cancel.load(Ordering::Relaxed) {
+                Some(Status::Cancelled)
+            } else if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
+                Some(Status::TimeLimit)
+            } else {
+                None
+            }
+        };
         let mut mu = options.mu_init;
         let mut delta = 1.0;
         let mut iterations = 0;
@@ -356,11 +368,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             if converged {
                 break Status::Converged;
             }
-            if cancel.load(Ordering::Relaxed) {
-                break Status::Cancelled;
-            }
-            if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
-                break Status::TimeLimit;
+            if let Some(status) = interrupted() {
+                break status;
             }
             if iterations >= options.max_iterations {
                 break Status::MaxIterations;
@@ -384,7 +393,16 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 elapsed: Duration::ZERO,
             };
             let mut accepted = false;
-            for &alpha in &options.step_sizes {
+            let mut stop = None;
+            for (i, &alpha) in options.step_sizes.iter().enumerate() {
+                // Between rollouts too, so that a long horizon overruns its
+                // budget by one rollout rather than a whole line search.
+                if i > 0 {
+                    stop = interrupted();
+                    if stop.is_some() {
+                        break;
+                    }
+                }
                 let expected = -(alpha * bw.dv1 + alpha * alpha * bw.dv2);
                 let new_cost = self.forward(problem, alpha);
                 row.expected_reduction = expected;
@@ -408,6 +426,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     accepted = true;
                     break;
                 }
+            }
+            if let Some(status) = stop {
+                // The nominal trajectory is unchanged, so the gains of this
+                // iteration's backward pass still describe it.
+                row.elapsed = start.elapsed();
+                self.trace.push(row);
+                break status;
             }
             if accepted {
                 stale = true;
