@@ -97,7 +97,7 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    let result = match solve(&spec, None, &AtomicBool::new(false)) {
+    let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);

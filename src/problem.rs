@@ -12,6 +12,8 @@
 //! [`ProblemSpec::validate`] checks every value before anything is solved and
 //! reports *all* problems at once, each with the JSON pointer of its field.
 
+use std::time::Duration;
+
 use serde::{Deserialize, Deserializer, Serialize};
 use utoipa::ToSchema;
 
@@ -23,6 +25,23 @@ pub const DEFAULT_MAX_HORIZON: usize = 10_000;
 pub const MAX_ITERATIONS: usize = 10_000;
 /// Largest accepted number of obstacles.
 pub const MAX_OBSTACLES: usize = 100;
+/// Largest magnitude of a state component (initial and goal state, obstacle
+/// centres): m, rad, m/s or rad/s. With this bound, mass ≥ [`MIN_PARAMETER`]
+/// and thrusts ≤ [`MAX_CONTROL`], no rollout of up to 10000 steps can
+/// overflow an f64, so every valid problem has a finite initial cost.
+pub const MAX_STATE: f64 = 1e6;
+/// Largest magnitude of an initial-guess thrust, N.
+pub const MAX_CONTROL: f64 = 1e6;
+/// Largest cost weight.
+pub const MAX_WEIGHT: f64 = 1e12;
+/// Smallest mass (kg), inertia (kg·m²) and arm length (m).
+pub const MIN_PARAMETER: f64 = 1e-6;
+/// Largest mass, inertia and arm length.
+pub const MAX_PARAMETER: f64 = 1e6;
+/// Largest gravitational acceleration, m/s².
+pub const MAX_GRAVITY: f64 = 1e4;
+/// Largest time step, s.
+pub const MAX_DT: f64 = 10.0;
 
 /// A trajectory-optimisation problem for the planar quadrotor.
 ///
@@ -38,8 +57,8 @@ pub struct ProblemSpec {
     pub model: ModelSpec,
     /// How the continuous dynamics are discretised.
     pub integrator: Integrator,
-    /// Time step in seconds. Default 0.05.
-    #[schema(default = 0.05, exclusive_minimum = 0.0)]
+    /// Time step in seconds, at most 10. Default 0.05.
+    #[schema(default = 0.05, exclusive_minimum = 0.0, maximum = 10.0)]
     pub dt: f64,
     /// Number of control steps N (the trajectory has N + 1 states). Default
     /// 100; at most 10000 (the service may be configured lower).
@@ -48,11 +67,11 @@ pub struct ProblemSpec {
     pub horizon: usize,
     /// Initial state `[x, y, θ, ẋ, ẏ, θ̇]` in m, m, rad, m/s, m/s, rad/s.
     /// Default `[5, 0, 0, 0, 0, 0]`.
-    #[schema(min_items = 6, max_items = 6)]
+    #[schema(schema_with = schema::initial_state)]
     pub initial_state: [f64; 6],
     /// Target state, same units. Default `[4, 9, 0, 0, 0, 0]`: the initial
     /// state reflected through the default obstacle.
-    #[schema(min_items = 6, max_items = 6)]
+    #[schema(schema_with = schema::goal_state)]
     pub goal_state: [f64; 6],
     /// Diagonal cost weights.
     pub weights: Weights,
@@ -62,7 +81,7 @@ pub struct ProblemSpec {
     /// Initial guess for the controls: N rows of `[u1, u2]` in N. Default:
     /// hover thrust `m·g/2` on both rotors.
     #[serde(skip_serializing_if = "Option::is_none")]
-    #[schema(schema_with = schema::rows_of_2)]
+    #[schema(schema_with = schema::initial_controls)]
     pub initial_controls: Option<Vec<[f64; 2]>>,
     /// Termination settings.
     pub solver: SolverSpec,
@@ -77,17 +96,18 @@ pub struct ModelSpec {
     /// Model kind.
     #[serde(rename = "type")]
     pub kind: ModelKind,
-    /// Mass m in kg. Default 1.
-    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    /// Mass m in kg, from 1e-6 to 1e6. Default 1.
+    #[schema(default = 1.0, minimum = 1e-6, maximum = 1e6)]
     pub mass: f64,
-    /// Moment of inertia I in kg·m². Default 1.
-    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    /// Moment of inertia I in kg·m², from 1e-6 to 1e6. Default 1.
+    #[schema(default = 1.0, minimum = 1e-6, maximum = 1e6)]
     pub inertia: f64,
-    /// Distance r from the centre to each rotor in m. Default 1.
-    #[schema(default = 1.0, exclusive_minimum = 0.0)]
+    /// Distance r from the centre to each rotor in m, from 1e-6 to 1e6.
+    /// Default 1.
+    #[schema(default = 1.0, minimum = 1e-6, maximum = 1e6)]
     pub arm_length: f64,
-    /// Gravitational acceleration g in m/s². Default 9.81.
-    #[schema(default = 9.81, minimum = 0.0)]
+    /// Gravitational acceleration g in m/s², from 0 to 1e4. Default 9.81.
+    #[schema(default = 9.81, minimum = 0.0, maximum = 1e4)]
     pub gravity: f64,
 }
 
@@ -115,13 +135,13 @@ pub enum Integrator {
 #[serde(default, deny_unknown_fields)]
 pub struct Weights {
     /// Diagonal of Q, the stage state weight. Default all 1.
-    #[schema(min_items = 6, max_items = 6)]
+    #[schema(schema_with = schema::state_weights)]
     pub state: [f64; 6],
     /// Diagonal of R, the control weight. Default `[0.1, 0.1]`.
-    #[schema(min_items = 2, max_items = 2)]
+    #[schema(schema_with = schema::control_weights)]
     pub control: [f64; 2],
     /// Diagonal of Q_f, the terminal state weight. Default all 50000.
-    #[schema(min_items = 6, max_items = 6)]
+    #[schema(schema_with = schema::terminal_weights)]
     pub terminal: [f64; 6],
 }
 
@@ -131,10 +151,10 @@ pub struct Weights {
 #[serde(deny_unknown_fields)]
 pub struct Obstacle {
     /// Centre `[x, y]` in m.
-    #[schema(min_items = 2, max_items = 2)]
+    #[schema(schema_with = schema::obstacle_center)]
     pub center: [f64; 2],
-    /// Weight q (cost units, ≥ 0).
-    #[schema(minimum = 0.0)]
+    /// Weight q (cost units, from 0 to 1e12).
+    #[schema(minimum = 0.0, maximum = 1e12)]
     pub weight: f64,
 }
 
@@ -150,7 +170,10 @@ pub struct SolverSpec {
     #[schema(default = 1e-9, minimum = 0.0, exclusive_maximum = 1.0)]
     pub tolerance: f64,
     /// Wall-clock budget in ms. When it runs out the solve stops with status
-    /// `time_limit` and returns the best trajectory so far. Unset: the
+    /// `time_limit` and returns the best trajectory so far. The service
+    /// counts it from admission, so time spent waiting for a worker is part
+    /// of it; it is checked every iteration and between line-search
+    /// rollouts, so the answer can come up to one iteration late. Unset: the
     /// service's default (the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]
     #[schema(minimum = 1)]
@@ -260,15 +283,33 @@ impl Default for Limits {
 }
 
 impl ProblemSpec {
+    /// The time budget the problem asks for (`solver.time_limit_ms`), or
+    /// `default` when it sets none.
+    pub fn time_limit(&self, default: Option<Duration>) -> Option<Duration> {
+        self.solver
+            .time_limit_ms
+            .map(Duration::from_millis)
+            .or(default)
+    }
+
     /// Check every value; returns all the problems found, or nothing.
     pub fn validate(&self, limits: &Limits) -> Result<(), Vec<FieldError>> {
         let mut v = Checker::default();
         let m = &self.model;
-        v.positive("/model/mass", m.mass, "kg");
-        v.positive("/model/inertia", m.inertia, "kg·m²");
-        v.positive("/model/arm_length", m.arm_length, "m");
-        v.non_negative("/model/gravity", m.gravity, "m/s²");
-        v.positive("/dt", self.dt, "s");
+        let (lo, hi) = (MIN_PARAMETER, MAX_PARAMETER);
+        v.range("/model/mass", m.mass, lo, hi, "kg");
+        v.range("/model/inertia", m.inertia, lo, hi, "kg·m²");
+        v.range("/model/arm_length", m.arm_length, lo, hi, "m");
+        v.range("/model/gravity", m.gravity, 0.0, MAX_GRAVITY, "m/s²");
+        if !(self.dt.is_finite() && self.dt > 0.0 && self.dt <= MAX_DT) {
+            v.push(
+                "/dt",
+                format!(
+                    "must be a positive number of seconds, at most {MAX_DT}, got {}",
+                    self.dt
+                ),
+            );
+        }
         if self.horizon == 0 || self.horizon > limits.max_horizon {
             v.push(
                 "/horizon",
@@ -278,11 +319,18 @@ impl ProblemSpec {
                 ),
             );
         }
-        v.finite_all("/initial_state", &self.initial_state);
-        v.finite_all("/goal_state", &self.goal_state);
-        v.non_negative_all("/weights/state", &self.weights.state);
-        v.non_negative_all("/weights/control", &self.weights.control);
-        v.non_negative_all("/weights/terminal", &self.weights.terminal);
+        let state = (-MAX_STATE, MAX_STATE);
+        v.range_all("/initial_state", &self.initial_state, state, "state units");
+        v.range_all("/goal_state", &self.goal_state, state, "state units");
+        let weight = (0.0, MAX_WEIGHT);
+        v.range_all("/weights/state", &self.weights.state, weight, "weight");
+        v.range_all("/weights/control", &self.weights.control, weight, "weight");
+        v.range_all(
+            "/weights/terminal",
+            &self.weights.terminal,
+            weight,
+            "weight",
+        );
         if self.obstacles.len() > MAX_OBSTACLES {
             v.push(
                 "/obstacles",
@@ -293,8 +341,15 @@ impl ProblemSpec {
             );
         }
         for (j, o) in self.obstacles.iter().enumerate() {
-            v.finite_all(&format!("/obstacles/{j}/center"), &o.center);
-            v.non_negative(&format!("/obstacles/{j}/weight"), o.weight, "cost units");
+            v.range_all(&format!("/obstacles/{j}/center"), &o.center, state, "m");
+            let (lo, hi) = weight;
+            v.range(
+                &format!("/obstacles/{j}/weight"),
+                o.weight,
+                lo,
+                hi,
+                "cost units",
+            );
         }
         if let Some(us) = &self.initial_controls {
             if us.len() != self.horizon {
@@ -308,7 +363,8 @@ impl ProblemSpec {
                 );
             }
             for (k, u) in us.iter().enumerate() {
-                v.finite_all(&format!("/initial_controls/{k}"), u);
+                let pointer = format!("/initial_controls/{k}");
+                v.range_all(&pointer, u, (-MAX_CONTROL, MAX_CONTROL), "N");
             }
         }
         let s = &self.solver;
@@ -351,38 +407,19 @@ impl Checker {
         });
     }
 
-    fn positive(&mut self, pointer: &str, x: f64, unit: &str) {
-        if !(x.is_finite() && x > 0.0) {
+    /// `lo ≤ x ≤ hi`, and finite.
+    fn range(&mut self, pointer: &str, x: f64, lo: f64, hi: f64, unit: &str) {
+        if !(x.is_finite() && (lo..=hi).contains(&x)) {
             self.push(
                 pointer,
-                format!("must be a positive finite number ({unit}), got {x}"),
+                format!("must be a number from {lo:e} to {hi:e} ({unit}), got {x}"),
             );
         }
     }
 
-    fn non_negative(&mut self, pointer: &str, x: f64, unit: &str) {
-        if !(x.is_finite() && x >= 0.0) {
-            self.push(
-                pointer,
-                format!("must be a finite number ≥ 0 ({unit}), got {x}"),
-            );
-        }
-    }
-
-    fn finite_all(&mut self, pointer: &str, xs: &[f64]) {
+    fn range_all(&mut self, pointer: &str, xs: &[f64], (lo, hi): (f64, f64), unit: &str) {
         for (i, x) in xs.iter().enumerate() {
-            if !x.is_finite() {
-                self.push(
-                    &format!("{pointer}/{i}"),
-                    format!("must be a finite number, got {x}"),
-                );
-            }
-        }
-    }
-
-    fn non_negative_all(&mut self, pointer: &str, xs: &[f64]) {
-        for (i, x) in xs.iter().enumerate() {
-            self.non_negative(&format!("{pointer}/{i}"), *x, "weight");
+            self.range(&format!("{pointer}/{i}"), *x, lo, hi, unit);
         }
     }
 

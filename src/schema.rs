@@ -1,11 +1,15 @@
 //! Hand-written OpenAPI schemas for nested arrays.
 //!
 //! utoipa derives `[f64; 6]` as an array of numbers with no length bounds and
-//! cannot put bounds on the inner arrays of `Vec<[f64; 6]>`. These builders
-//! state the lengths, so the spec says exactly what serde accepts.
+//! cannot put bounds on the inner arrays of `Vec<[f64; 6]>` or on the items
+//! of an array. These builders state the lengths and the value ranges, so
+//! the spec says exactly what validation accepts. (A `schema_with` replaces
+//! the field's doc comment, so each builder carries its own description.)
 
-use utoipa::openapi::schema::{ArrayBuilder, ArrayItems, ObjectBuilder, Schema, Type};
+use utoipa::openapi::schema::{ArrayBuilder, ArrayItems, ObjectBuilder, Schema, SchemaType, Type};
 use utoipa::openapi::{KnownFormat, SchemaFormat};
+
+use crate::problem::{MAX_CONTROL, MAX_STATE, MAX_WEIGHT};
 
 fn number() -> ObjectBuilder {
     ObjectBuilder::new()
@@ -20,12 +24,90 @@ fn fixed(len: usize, items: impl Into<ArrayItems>) -> ArrayBuilder {
         .max_items(Some(len))
 }
 
-/// Rows of `[u1, u2]`.
-pub fn rows_of_2() -> Schema {
+/// A number from `lo` to `hi`.
+fn number_in(lo: f64, hi: f64) -> ObjectBuilder {
+    number().minimum(Some(lo)).maximum(Some(hi))
+}
+
+/// A fixed-length vector of numbers from `lo` to `hi`.
+fn vector(len: usize, lo: f64, hi: f64, description: &str) -> Schema {
+    fixed(len, number_in(lo, hi))
+        .description(Some(description))
+        .build()
+        .into()
+}
+
+/// `initial_state`.
+pub fn initial_state() -> Schema {
+    vector(
+        6,
+        -MAX_STATE,
+        MAX_STATE,
+        "Initial state [x, y, θ, ẋ, ẏ, θ̇] in m, m, rad, m/s, m/s, rad/s, each of magnitude \
+         at most 1e6. Default [5, 0, 0, 0, 0, 0].",
+    )
+}
+
+/// `goal_state`.
+pub fn goal_state() -> Schema {
+    vector(
+        6,
+        -MAX_STATE,
+        MAX_STATE,
+        "Target state, same units and bounds as initial_state. Default [4, 9, 0, 0, 0, 0]: \
+         the initial state reflected through the default obstacle.",
+    )
+}
+
+/// `weights.state`.
+pub fn state_weights() -> Schema {
+    vector(
+        6,
+        0.0,
+        MAX_WEIGHT,
+        "Diagonal of Q, the stage state weight (0 to 1e12). Default all 1.",
+    )
+}
+
+/// `weights.control`.
+pub fn control_weights() -> Schema {
+    vector(
+        2,
+        0.0,
+        MAX_WEIGHT,
+        "Diagonal of R, the control weight (0 to 1e12). Default [0.1, 0.1].",
+    )
+}
+
+/// `weights.terminal`.
+pub fn terminal_weights() -> Schema {
+    vector(
+        6,
+        0.0,
+        MAX_WEIGHT,
+        "Diagonal of Q_f, the terminal state weight (0 to 1e12). Default all 50000.",
+    )
+}
+
+/// `obstacles[].center`.
+pub fn obstacle_center() -> Schema {
+    vector(
+        2,
+        -MAX_STATE,
+        MAX_STATE,
+        "Centre [x, y] in m, each of magnitude at most 1e6.",
+    )
+}
+
+/// `initial_controls`: rows of `[u1, u2]`, or null for the default.
+pub fn initial_controls() -> Schema {
     ArrayBuilder::new()
-        .items(fixed(2, number()))
+        .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
+        .items(fixed(2, number_in(-MAX_CONTROL, MAX_CONTROL)))
         .description(Some(
-            "One [u1, u2] row per step (N rows), rotor thrusts in N.",
+            "Initial guess for the controls: one [u1, u2] row per step (N rows), rotor \
+             thrusts in N of magnitude at most 1e6. Absent or null: hover thrust m·g/2 on \
+             both rotors.",
         ))
         .build()
         .into()

@@ -128,8 +128,10 @@ pub struct TraceEntry {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Unsolvable(pub FieldError);
 
-/// Solve a problem that [`ProblemSpec::validate`] accepted. `time_limit`
-/// applies when the problem sets none; `cancel` is polled every iteration.
+/// Solve a problem that [`ProblemSpec::validate`] accepted, within the
+/// wall-clock budget `time_limit` (the caller decides it: the CLI uses
+/// `solver.time_limit_ms`, the service also counts the time spent queued).
+/// `cancel` is polled every iteration.
 pub fn solve(
     spec: &ProblemSpec,
     time_limit: Option<Duration>,
@@ -176,11 +178,7 @@ pub fn solve(
     let options = Options {
         max_iterations: spec.solver.max_iterations,
         tolerance: spec.solver.tolerance,
-        time_limit: spec
-            .solver
-            .time_limit_ms
-            .map(Duration::from_millis)
-            .or(time_limit),
+        time_limit,
         ..Options::default()
     };
 

@@ -170,12 +170,100 @@ fn malformed_json_is_a_syntax_error() {
 }
 
 #[test]
-fn controls_that_blow_up_are_reported_at_initial_controls() {
-    let spec =
-        parse(br#"{"horizon": 3, "initial_controls": [[1e300, -1e300], [0, 0], [0, 0]]}"#).unwrap();
-    spec.validate(&Limits::default()).unwrap();
-    let err = solve(&spec, None, &Default::default()).unwrap_err();
-    assert_eq!(err.0.pointer, "/initial_controls");
+fn magnitudes_beyond_the_documented_ranges_are_rejected() {
+    for (doc, pointer) in [
+        (json!({"model": {"mass": 1e-7}}), "/model/mass"),
+        (json!({"model": {"inertia": 2e6}}), "/model/inertia"),
+        (
+            json!({"model": {"arm_length": 1e-300}}),
+            "/model/arm_length",
+        ),
+        (json!({"model": {"gravity": 1e5}}), "/model/gravity"),
+        (json!({"dt": 11}), "/dt"),
+        (
+            json!({"initial_state": [2e6, 0, 0, 0, 0, 0]}),
+            "/initial_state/0",
+        ),
+        (
+            json!({"goal_state": [0, 0, 0, 0, 0, -1e300]}),
+            "/goal_state/5",
+        ),
+        (
+            json!({"weights": {"terminal": [1, 1, 1e13, 1, 1, 1]}}),
+            "/weights/terminal/2",
+        ),
+        (
+            json!({"obstacles": [{"center": [0, 1e200], "weight": 0}]}),
+            "/obstacles/0/center/1",
+        ),
+        (
+            json!({"obstacles": [{"center": [0, 0], "weight": 1e13}]}),
+            "/obstacles/0/weight",
+        ),
+        (
+            json!({"horizon": 3, "initial_controls": [[1, 1], [1e300, -1e300], [0, 0]]}),
+            "/initial_controls/1/0",
+        ),
+    ] {
+        rejects(doc, pointer);
+    }
+    // The bounds themselves are accepted.
+    assert!(
+        errors(
+            &json!({"model": {"mass": 1e-6, "inertia": 1e6, "gravity": 1e4}, "dt": 10,
+                       "goal_state": [1e6, -1e6, 0, 0, 0, 0]})
+        )
+        .is_empty()
+    );
+    // `null` is the same as leaving initial_controls out.
+    assert_eq!(
+        parse(br#"{"initial_controls": null}"#).unwrap(),
+        ProblemSpec::default()
+    );
+}
+
+/// The ranges exist so that no valid problem overflows: the most extreme one
+/// (lightest, weakest-armed vehicle, strongest thrusts, longest steps and
+/// horizon, largest weights) still has a finite initial cost and solves to a
+/// finite result with finite gains.
+#[test]
+fn the_most_extreme_valid_problem_stays_finite() {
+    let n = 10_000;
+    let controls: Vec<[f64; 2]> = (0..n)
+        .map(|k| if k % 2 == 0 { [1e6, -1e6] } else { [-1e6, 1e6] })
+        .collect();
+    let doc = json!({
+        "model": {"mass": 1e-6, "inertia": 1e-6, "arm_length": 1e6, "gravity": 1e4},
+        "dt": 10, "horizon": n,
+        "initial_state": [1e6, -1e6, 1e6, -1e6, 1e6, -1e6],
+        "goal_state": [-1e6, 1e6, -1e6, 1e6, -1e6, 1e6],
+        "weights": {"state": vec![1e12; 6], "control": vec![1e12; 2], "terminal": vec![1e12; 6]},
+        "obstacles": [{"center": [1e6, 1e6], "weight": 1e12}, {"center": [-1e6, -1e6], "weight": 1e12}],
+        "initial_controls": controls,
+        "solver": {"max_iterations": 3},
+        "output": {"trace": false}
+    });
+    assert!(errors(&doc).is_empty());
+    let spec = parse(doc.to_string().as_bytes()).unwrap();
+    let r = solve(&spec, None, &Default::default()).expect("a valid problem solves");
+    assert!(
+        r.initial_cost.is_finite() && r.cost.is_finite(),
+        "{} {}",
+        r.initial_cost,
+        r.cost
+    );
+    assert!(r.goal_distance.is_finite());
+    assert!(r.closest_approach.iter().all(|d| d.is_finite()));
+    assert!(r.states.iter().flatten().all(|v| v.is_finite()));
+    let gains = r.gains.expect("gains requested");
+    assert!(
+        gains
+            .feedback
+            .iter()
+            .flatten()
+            .flatten()
+            .all(|v| v.is_finite())
+    );
 }
 
 proptest! {
