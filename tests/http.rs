@@ -238,6 +238,51 @@ async fn every_error_class_is_a_problem_document() {
 
     problem_of(s.get("/nope").await, StatusCode::NOT_FOUND).await;
     problem_of(s.get("/solve").await, StatusCode::METHOD_NOT_ALLOWED).await;
+
+    // Wrong types, JSON's stand-in for NaN, and values out of range: 422
+    // with the pointer of the offending element.
+    for (body, pointer) in [
+        (json!({"dt": "0.1"}), "/dt"),
+        (json!({"dt": "NaN"}), "/dt"),
+        (
+            json!({"weights": {"state": [1, 1, "a", 1, 1, 1]}}),
+            "/weights/state/2",
+        ),
+        (json!({"model": {"mass": -1}}), "/model/mass"),
+        (json!({"goal_state": [2e6, 0, 0, 0, 0, 0]}), "/goal_state/0"),
+        (
+            json!({"obstacles": [{"center": [1, 1], "weight": 1, "radius": 2}]}),
+            "/obstacles/0/radius",
+        ),
+    ] {
+        let p = problem_of(s.post(&body).await, StatusCode::UNPROCESSABLE_ENTITY).await;
+        assert_eq!(p["errors"][0]["pointer"], pointer, "{body}");
+    }
+}
+
+/// A body declared larger than the limit is refused from its headers, before
+/// any of it is sent (and before `Expect: 100-continue` is answered).
+#[tokio::test]
+async fn a_declared_oversized_body_is_refused_at_once() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = Server::start(Config {
+        max_body_bytes: 4096,
+        ..Config::default()
+    })
+    .await;
+    let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    sock.write_all(
+        b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+          Content-Length: 100000000\r\nExpect: 100-continue\r\n\r\n",
+    )
+    .await
+    .unwrap();
+    let mut head = [0u8; 12];
+    tokio::time::timeout(Duration::from_secs(2), sock.read_exact(&mut head))
+        .await
+        .expect("answered without waiting for the body")
+        .unwrap();
+    assert_eq!(&head, b"HTTP/1.1 413");
 }
 
 #[tokio::test]
@@ -359,6 +404,87 @@ async fn a_client_that_disconnects_cancels_its_solve() {
     );
 }
 
+/// A client that gives up while its solve is still queued frees the slot at
+/// once: the next request is admitted although the worker is still busy.
+#[tokio::test]
+async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
+    let s = Server::start(small(1, 1)).await;
+    let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let busy = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&slow(2000))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let impatient = reqwest::Client::builder()
+        .timeout(Duration::from_millis(300))
+        .build()
+        .unwrap();
+    let gone = impatient
+        .post(s.url("/solve"))
+        .json(&json!({}))
+        .send()
+        .await;
+    assert!(gone.unwrap_err().is_timeout());
+    tokio::time::sleep(Duration::from_millis(100)).await;
+
+    // The worker is still on the 2 s solve, yet there is room in the queue.
+    let t = Instant::now();
+    let res = s.post(&json!({})).await;
+    assert_eq!(
+        res.status(),
+        200,
+        "the abandoned request kept its queue slot"
+    );
+    let r: Value = res.json().await.unwrap();
+    assert_eq!(r["status"], "converged");
+    assert!(
+        t.elapsed() > Duration::from_millis(500),
+        "it queued behind the busy worker"
+    );
+    let cancelled_after = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    assert!(cancelled_after >= cancelled_before + 1.0);
+    assert_eq!(busy.await.unwrap().status(), 200);
+}
+
+/// The budget runs from admission: a solve that waited in the queue for
+/// longer than its budget gets no iterations of its own, and says so.
+#[tokio::test]
+async fn time_spent_queued_counts_against_the_budget() {
+    let s = Server::start(small(1, 1)).await;
+    let busy = tokio::spawn({
+        let url = s.url("/solve");
+        async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&slow(1000))
+                .send()
+                .await
+                .unwrap()
+        }
+    });
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let r: Value = s.post(&slow(300)).await.json().await.unwrap();
+    assert_eq!(r["status"], "time_limit");
+    assert_eq!(r["iterations"], 0);
+    assert!(
+        r["queue_time_ms"].as_f64().unwrap() > 300.0,
+        "{}",
+        r["queue_time_ms"]
+    );
+    assert!(
+        r["cost"] == r["initial_cost"],
+        "the initial guess, unimproved"
+    );
+    assert_eq!(busy.await.unwrap().status(), 200);
+}
+
 /// The value of one Prometheus sample, 0 when absent.
 async fn counter(s: &Server, sample: &str) -> f64 {
     let text = s.get("/metrics").await.text().await.unwrap();
@@ -372,6 +498,14 @@ async fn metrics_count_requests_solves_and_rejections() {
     let s = Server::default().await;
     assert_eq!(s.post(&json!({})).await.status(), 200);
     assert_eq!(s.post(&json!({"dt": 0})).await.status(), 422);
+    let malformed = reqwest::Client::new()
+        .post(s.url("/solve"))
+        .header("content-type", "application/json")
+        .body("{")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(malformed.status(), 400);
     let res = s.get("/metrics").await;
     assert_eq!(res.status(), 200);
     let text = res.text().await.unwrap();
@@ -380,6 +514,7 @@ async fn metrics_count_requests_solves_and_rejections() {
         "http_requests_total{route=\"/solve\",status=\"422\"}",
         "solves_total{status=\"converged\"}",
         "solve_rejections_total{reason=\"invalid\"}",
+        "solve_rejections_total{reason=\"malformed_json\"}",
         "solve_queue_depth",
         "solve_queue_wait_seconds_bucket",
         "solve_duration_seconds_bucket",

@@ -103,6 +103,21 @@ impl ApiError {
         }
     }
 
+    /// The `reason` label of `solve_rejections_total` for this error.
+    pub fn reason(&self) -> &'static str {
+        match self {
+            Self::MalformedJson(_) => "malformed_json",
+            Self::Validation(_) => "invalid",
+            Self::UnsupportedMediaType => "unsupported_media_type",
+            Self::PayloadTooLarge(_) => "too_large",
+            Self::Overloaded { .. } => "queue_full",
+            Self::ShuttingDown => "shutting_down",
+            Self::Internal => "internal",
+            Self::NotFound => "not_found",
+            Self::MethodNotAllowed => "method_not_allowed",
+        }
+    }
+
     /// The problem document for this error.
     pub fn problem(&self) -> Problem {
         let (status, slug, title) = self.parts();

@@ -4,9 +4,12 @@
 //! `GET /metrics`. Names:
 //!
 //! * `http_requests_total{route, status}`, counter;
-//! * `solves_total{status}`, counter, by solve status (`converged`, …);
-//! * `solve_rejections_total{reason}`, counter: `invalid`, `queue_full`,
-//!   `shutting_down`, `panic`;
+//! * `solves_total{status}`, counter, by solve status (`converged`, …); a
+//!   solve withdrawn from the queue because its client left counts as
+//!   `cancelled`;
+//! * `solve_rejections_total{reason}`, counter, every `/solve` request that
+//!   got an error: `malformed_json`, `unsupported_media_type`, `too_large`,
+//!   `invalid`, `queue_full`, `shutting_down`, `internal` (a solver panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram.

@@ -5,21 +5,24 @@
 //! threads, and rayon aborts the process when a job panics unless a handler
 //! is installed; a small pool of our own states its limits plainly:
 //!
-//! * `workers` threads take jobs from one FIFO queue; at most
-//!   `workers + capacity` jobs are admitted at once (running or waiting);
-//! * [`Pool::submit`] never waits: when every slot is taken it returns
-//!   [`Full`] at once, and the HTTP layer answers 503. Slots are counted
-//!   with an atomic, not by the channel, so the answer does not depend on
-//!   whether a worker happens to be parked in `recv` at that instant;
-//! * a job whose caller has gone away before it starts (its result receiver
-//!   was dropped) is skipped;
+//! * `workers` threads take jobs from one FIFO queue, a `VecDeque` under a
+//!   mutex with a condition variable to wake idle workers;
+//! * at most `workers + capacity` jobs are admitted at once (running or
+//!   waiting). [`Pool::submit`] never waits: when every slot is taken it
+//!   returns [`Full`] at once, and the HTTP layer answers 503;
+//! * a job is withdrawn from the queue when its [`Ticket`] is dropped before
+//!   a worker took it (the client went away), so an abandoned request frees
+//!   its slot at once instead of holding it until a worker gets there;
 //! * a panicking job is caught with `catch_unwind` and reported to its caller
 //!   as [`Panicked`]; the worker thread lives on.
+//!
+//! The queue is short (its capacity is a configuration value in the tens),
+//! so withdrawing by a linear search under the lock costs nothing next to a
+//! solve.
 
+use std::collections::VecDeque;
 use std::panic::{AssertUnwindSafe, catch_unwind};
-use std::sync::atomic::{AtomicUsize, Ordering};
-use std::sync::mpsc::{Receiver, Sender, channel};
-use std::sync::{Arc, Mutex};
+use std::sync::{Arc, Condvar, Mutex, MutexGuard};
 use std::time::{Duration, Instant};
 
 use tokio::sync::oneshot;
@@ -45,81 +48,103 @@ pub struct Done<T> {
 
 /// A fixed pool of worker threads with a bounded queue.
 pub struct Pool {
-    tx: Sender<Job>,
-    /// Jobs submitted and not yet started.
-    queued: Arc<AtomicUsize>,
-    /// Free admission slots: `workers + capacity` minus jobs admitted and
-    /// not yet finished.
-    free: Arc<AtomicUsize>,
+    shared: Arc<Shared>,
     workers: usize,
     capacity: usize,
+}
+
+struct Shared {
+    state: Mutex<State>,
+    /// Signalled when a job is queued or the pool closes.
+    wake: Condvar,
+}
+
+struct State {
+    queue: VecDeque<(u64, Job)>,
+    running: usize,
+    next_id: u64,
+    closed: bool,
+}
+
+impl Shared {
+    fn lock(&self) -> MutexGuard<'_, State> {
+        // A job never runs under the lock, so a poisoned lock means a panic
+        // in this module's few lines of bookkeeping; the state is still
+        // consistent enough to go on serving.
+        self.state.lock().unwrap_or_else(|p| p.into_inner())
+    }
 }
 
 impl Pool {
     /// Start `workers` threads (at least 1) behind a queue of `capacity`
     /// waiting jobs. The threads end when the pool is dropped and the queue
-    /// drains.
+    /// has drained.
     pub fn new(workers: usize, capacity: usize) -> std::io::Result<Self> {
         let workers = workers.max(1);
-        let (tx, rx) = channel::<Job>();
-        let rx = Arc::new(Mutex::new(rx));
+        let shared = Arc::new(Shared {
+            state: Mutex::new(State {
+                queue: VecDeque::with_capacity(capacity),
+                running: 0,
+                next_id: 0,
+                closed: false,
+            }),
+            wake: Condvar::new(),
+        });
         for i in 0..workers {
-            let rx = Arc::clone(&rx);
+            let shared = Arc::clone(&shared);
             std::thread::Builder::new()
                 .name(format!("solver-{i}"))
-                .spawn(move || worker(&rx))?;
+                .spawn(move || worker(&shared))?;
         }
         Ok(Self {
-            tx,
-            queued: Arc::new(AtomicUsize::new(0)),
-            free: Arc::new(AtomicUsize::new(workers + capacity)),
+            shared,
             workers,
             capacity,
         })
     }
 
-    /// Queue `f`; the receiver yields its outcome. Fails at once with [`Full`]
-    /// when `capacity` jobs are already waiting.
-    pub fn submit<T, F>(&self, f: F) -> Result<oneshot::Receiver<Done<T>>, Full>
+    /// Queue `f`, which receives the time it waited for a worker. Fails at
+    /// once with [`Full`] when `workers + capacity` jobs are already admitted.
+    pub fn submit<T, F>(&self, f: F) -> Result<Ticket<T>, Full>
     where
         T: Send + 'static,
-        F: FnOnce() -> T + Send + 'static,
+        F: FnOnce(Duration) -> T + Send + 'static,
     {
-        // Take a slot or fail at once.
-        self.free
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |n| n.checked_sub(1))
-            .map_err(|_| Full)?;
         let (done_tx, done_rx) = oneshot::channel();
-        let queued = Arc::clone(&self.queued);
-        let slot = SlotGuard(Arc::clone(&self.free));
         let submitted = Instant::now();
+        let shared = Arc::clone(&self.shared);
         let job: Job = Box::new(move || {
-            let _slot = slot; // freed when the job ends, panic or not
-            queued.fetch_sub(1, Ordering::Relaxed);
-            if done_tx.is_closed() {
-                return; // the caller left while we were queued
-            }
             let waited = submitted.elapsed();
-            let outcome =
-                catch_unwind(AssertUnwindSafe(f)).map_err(|p| Panicked(panic_message(&p)));
+            let outcome = catch_unwind(AssertUnwindSafe(|| f(waited)))
+                .map_err(|p| Panicked(panic_message(&p)));
+            // Free the slot before answering, so a caller that submits again
+            // as soon as it has its answer finds the slot free.
+            shared.lock().running -= 1;
+            // The caller may have left while the job ran; nothing to do then.
             let _ = done_tx.send(Done {
                 outcome,
                 queued: waited,
             });
         });
-        self.queued.fetch_add(1, Ordering::Relaxed);
-        // Sending fails only if every worker thread is gone; the job (and
-        // its slot) is dropped with the error.
-        self.tx.send(job).map_err(|_| {
-            self.queued.fetch_sub(1, Ordering::Relaxed);
-            Full
-        })?;
-        Ok(done_rx)
+        let mut st = self.shared.lock();
+        if st.closed || st.running + st.queue.len() >= self.workers + self.capacity {
+            return Err(Full);
+        }
+        let id = st.next_id;
+        st.next_id += 1;
+        st.queue.push_back((id, job));
+        drop(st);
+        self.shared.wake.notify_one();
+        Ok(Ticket {
+            rx: done_rx,
+            id,
+            shared: Arc::clone(&self.shared),
+        })
     }
 
     /// Jobs waiting for a worker.
     pub fn queue_depth(&self) -> usize {
-        self.queued.load(Ordering::Relaxed)
+        self.shared.lock().queue.len()
     }
 
     /// Number of worker threads.
@@ -133,26 +158,65 @@ impl Pool {
     }
 }
 
-/// Returns its admission slot when dropped.
-struct SlotGuard(Arc<AtomicUsize>);
-
-impl Drop for SlotGuard {
+impl Drop for Pool {
     fn drop(&mut self) {
-        self.0.fetch_add(1, Ordering::AcqRel);
+        self.shared.lock().closed = true;
+        self.shared.wake.notify_all();
     }
 }
 
-fn worker(rx: &Mutex<Receiver<Job>>) {
-    loop {
-        // Hold the lock only while taking a job, not while running it.
-        let job = match rx.lock() {
-            Ok(guard) => guard.recv(),
-            Err(poisoned) => poisoned.into_inner().recv(),
-        };
-        match job {
-            Ok(job) => job(),
-            Err(_) => return, // pool dropped
+/// An admitted job. Await [`Ticket::done`] for its outcome; drop the ticket
+/// to withdraw the job if no worker has taken it yet.
+pub struct Ticket<T> {
+    rx: oneshot::Receiver<Done<T>>,
+    id: u64,
+    shared: Arc<Shared>,
+}
+
+impl<T> Ticket<T> {
+    /// The job's outcome. `None` only if the job was lost, which would be a
+    /// bug in this module (a worker drops a job only after running it).
+    pub async fn done(&mut self) -> Option<Done<T>> {
+        (&mut self.rx).await.ok()
+    }
+
+    /// Take the job out of the queue if it is still waiting there. Returns
+    /// whether it was (so it will never run).
+    pub fn withdraw(&self) -> bool {
+        let mut st = self.shared.lock();
+        match st.queue.iter().position(|(id, _)| *id == self.id) {
+            Some(pos) => {
+                st.queue.remove(pos);
+                true
+            }
+            None => false,
         }
+    }
+}
+
+impl<T> Drop for Ticket<T> {
+    fn drop(&mut self) {
+        self.withdraw();
+    }
+}
+
+fn worker(shared: &Shared) {
+    loop {
+        let job = {
+            let mut st = shared.lock();
+            loop {
+                if let Some((_, job)) = st.queue.pop_front() {
+                    st.running += 1;
+                    break job;
+                }
+                if st.closed {
+                    return;
+                }
+                st = shared.wake.wait(st).unwrap_or_else(|p| p.into_inner());
+            }
+        };
+        // The job itself catches panics and gives its slot back.
+        job();
     }
 }
 
@@ -169,16 +233,19 @@ fn panic_message(p: &Box<dyn std::any::Any + Send>) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::sync::atomic::{AtomicUsize, Ordering};
 
     #[tokio::test]
     async fn a_panicking_job_is_reported_and_the_worker_survives() {
         let pool = Pool::new(1, 4).unwrap();
-        let rx = pool.submit(|| -> u32 { panic!("boom") }).unwrap();
-        let done = rx.await.unwrap();
-        assert_eq!(done.outcome, Err(Panicked("boom".into())));
+        let mut t = pool.submit(|_| -> u32 { panic!("boom") }).unwrap();
+        assert_eq!(
+            t.done().await.unwrap().outcome,
+            Err(Panicked("boom".into()))
+        );
         // The only worker must still be alive to run this.
-        let rx = pool.submit(|| 7).unwrap();
-        assert_eq!(rx.await.unwrap().outcome, Ok(7));
+        let mut t = pool.submit(|_| 7).unwrap();
+        assert_eq!(t.done().await.unwrap().outcome, Ok(7));
     }
 
     #[tokio::test]
@@ -186,42 +253,70 @@ mod tests {
         let pool = Pool::new(1, 1).unwrap();
         let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
         let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
-        let busy = pool
-            .submit(move || {
+        let mut busy = pool
+            .submit(move |_| {
                 started_tx.send(()).unwrap();
                 release_rx.recv().unwrap();
             })
             .unwrap();
         started_rx.recv().unwrap(); // the worker is busy
-        let queued = pool.submit(|| ()).unwrap(); // takes the one slot
+        let mut queued = pool.submit(|waited| waited).unwrap(); // takes the one slot
         assert_eq!(pool.queue_depth(), 1);
-        assert!(matches!(pool.submit(|| ()), Err(Full)));
+        assert!(matches!(pool.submit(|_| ()), Err(Full)));
+        std::thread::sleep(Duration::from_millis(20));
         release_tx.send(()).unwrap();
-        busy.await.unwrap().outcome.unwrap();
-        queued.await.unwrap().outcome.unwrap();
+        busy.done().await.unwrap().outcome.unwrap();
+        let done = queued.done().await.unwrap();
+        // The job is told how long it waited, and so is its caller.
+        assert!(done.queued >= Duration::from_millis(20));
+        assert_eq!(done.outcome, Ok(done.queued));
         assert_eq!(pool.queue_depth(), 0);
     }
 
     #[tokio::test]
-    async fn a_job_whose_caller_left_is_skipped() {
-        let pool = Pool::new(1, 2).unwrap();
+    async fn a_dropped_ticket_withdraws_its_job_and_frees_its_slot_at_once() {
+        let pool = Pool::new(1, 1).unwrap();
         let ran = Arc::new(AtomicUsize::new(0));
         let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
-        let blocker = pool.submit(move || release_rx.recv().unwrap()).unwrap();
-        let r = Arc::clone(&ran);
-        drop(
-            pool.submit(move || r.fetch_add(1, Ordering::SeqCst))
-                .unwrap(),
-        );
-        release_tx.send(()).unwrap();
-        blocker.await.unwrap().outcome.unwrap();
-        let r = Arc::clone(&ran);
-        pool.submit(move || r.load(Ordering::SeqCst))
-            .unwrap()
-            .await
-            .unwrap()
-            .outcome
+        let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
+        let mut blocker = pool
+            .submit(move |_| {
+                started_tx.send(()).unwrap();
+                release_rx.recv().unwrap();
+            })
             .unwrap();
-        assert_eq!(ran.load(Ordering::SeqCst), 0);
+        started_rx.recv().unwrap();
+        let r = Arc::clone(&ran);
+        let abandoned = pool
+            .submit(move |_| r.fetch_add(1, Ordering::SeqCst))
+            .unwrap();
+        assert!(matches!(pool.submit(|_| 0), Err(Full)));
+        drop(abandoned);
+        // The slot is free while the worker is still busy.
+        assert_eq!(pool.queue_depth(), 0);
+        let r = Arc::clone(&ran);
+        let mut next = pool.submit(move |_| r.load(Ordering::SeqCst)).unwrap();
+        release_tx.send(()).unwrap();
+        blocker.done().await.unwrap().outcome.unwrap();
+        assert_eq!(next.done().await.unwrap().outcome, Ok(0));
+        assert_eq!(ran.load(Ordering::SeqCst), 0, "the withdrawn job never ran");
+    }
+
+    #[tokio::test]
+    async fn a_running_job_cannot_be_withdrawn() {
+        let pool = Pool::new(1, 0).unwrap();
+        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
+        let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
+        let mut t = pool
+            .submit(move |_| {
+                started_tx.send(()).unwrap();
+                release_rx.recv().unwrap();
+                5
+            })
+            .unwrap();
+        started_rx.recv().unwrap();
+        assert!(!t.withdraw());
+        release_tx.send(()).unwrap();
+        assert_eq!(t.done().await.unwrap().outcome, Ok(5));
     }
 }

@@ -13,13 +13,14 @@ use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::compression::CompressionLayer;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
-use tower_http::trace::{DefaultOnFailure, TraceLayer};
+use tower_http::trace::{DefaultOnFailure, DefaultOnResponse, TraceLayer};
 use utoipa::{OpenApi, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use utoipa_swagger_ui::SwaggerUi;
 
 use super::error::{ApiError, Problem};
+use super::pool::Ticket;
 use super::{AppState, metrics};
 use crate::problem::{ParseError, ProblemSpec, parse};
 use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
@@ -77,6 +78,9 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
             .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
             .layer(
                 TraceLayer::new_for_http()
+                    // One access-log line per request (status, latency) in
+                    // the request's span, so it carries the request id.
+                    .on_response(DefaultOnResponse::new().level(tracing::Level::INFO))
                     // A 503 under overload is back-pressure working, not a
                     // failure of this process: warn, don't error.
                     .on_failure(DefaultOnFailure::new().level(tracing::Level::WARN))
@@ -103,26 +107,39 @@ impl FromRequest<Arc<AppState>> for ProblemJson {
     type Rejection = ApiError;
 
     async fn from_request(req: Request, state: &Arc<AppState>) -> Result<Self, Self::Rejection> {
-        let encoded = req
-            .headers()
-            .get(header::CONTENT_ENCODING)
-            .is_some_and(|v| v.as_bytes() != b"identity");
-        if encoded || !is_json(req.headers()) {
-            return Err(ApiError::UnsupportedMediaType);
+        read_problem(req, state).await.map(Self).map_err(reject)
+    }
+}
+
+async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec, ApiError> {
+    let headers = req.headers();
+    let encoded = headers
+        .get(header::CONTENT_ENCODING)
+        .is_some_and(|v| v.as_bytes() != b"identity");
+    if encoded || !is_json(headers) {
+        return Err(ApiError::UnsupportedMediaType);
+    }
+    let limit = state.config.max_body_bytes;
+    // A declared length over the limit is refused before reading a byte (and
+    // before hyper answers `Expect: 100-continue`).
+    let declared = headers
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > limit as u64) {
+        return Err(ApiError::PayloadTooLarge(limit));
+    }
+    let bytes = Bytes::from_request(req, state).await.map_err(|rej| {
+        if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
+            ApiError::PayloadTooLarge(limit)
+        } else {
+            ApiError::MalformedJson(rej.body_text())
         }
-        let limit = state.config.max_body_bytes;
-        let bytes = Bytes::from_request(req, state).await.map_err(|rej| {
-            if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                ApiError::PayloadTooLarge(limit)
-            } else {
-                ApiError::MalformedJson(rej.body_text())
-            }
-        })?;
-        match parse(&bytes) {
-            Ok(spec) => Ok(Self(spec)),
-            Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
-            Err(ParseError::Shape(f)) => Err(ApiError::Validation(vec![f])),
-        }
+    })?;
+    match parse(&bytes) {
+        Ok(spec) => Ok(spec),
+        Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
+        Err(ParseError::Shape(f)) => Err(ApiError::Validation(vec![f])),
     }
 }
 
@@ -168,26 +185,30 @@ fn is_json(headers: &HeaderMap) -> bool {
 async fn solve(
     State(st): State<Arc<AppState>>,
     ProblemJson(spec): ProblemJson,
-) -> Result<Json<SolveResult>, ApiError> {
+) -> Result<Response, ApiError> {
     if st.is_draining() {
-        return Err(reject(ApiError::ShuttingDown, "shutting_down"));
+        return Err(reject(ApiError::ShuttingDown));
     }
     spec.validate(&st.config.limits())
-        .map_err(|e| reject(ApiError::Validation(e), "invalid"))?;
+        .map_err(|e| reject(ApiError::Validation(e)))?;
 
     let guard = st.admit();
     let cancel = Arc::clone(&guard.flag);
     // The request span (and its request_id) follows the solve to the worker.
     let span = tracing::Span::current();
-    let default_limit = Duration::from_millis(st.config.default_time_limit_ms);
-    let rx = st
+    // The budget runs from admission: time spent waiting for a worker is
+    // part of it, so a caller's deadline holds under load too.
+    let budget = spec.time_limit(Some(Duration::from_millis(st.config.default_time_limit_ms)));
+    let ticket = st
         .pool
-        .submit(move || {
+        .submit(move |waited| {
             let _entered = span.enter();
-            let out = run_solve(&spec, Some(default_limit), &cancel);
+            let remaining = budget.map(|b| b.saturating_sub(waited));
+            let mut out = run_solve(&spec, remaining, &cancel);
             // Recorded here, not in the handler, so solves whose client left
             // are counted too.
-            if let Ok(r) = &out {
+            if let Ok(r) = &mut out {
+                r.queue_time_ms = waited.as_secs_f64() * 1e3;
                 ::metrics::counter!("solves_total", "status" => r.status.as_str()).increment(1);
                 ::metrics::histogram!("solve_duration_seconds").record(r.solve_time_ms / 1e3);
                 ::metrics::histogram!("solve_iterations").record(r.iterations as f64);
@@ -196,42 +217,67 @@ async fn solve(
                     iterations = r.iterations,
                     cost = r.cost,
                     solve_ms = r.solve_time_ms,
+                    queue_ms = r.queue_time_ms,
                     "solve finished"
                 );
             }
-            out
+            // Serialised here too: a long horizon's result is megabytes of
+            // JSON, which is CPU work the async runtime should not do.
+            out.map(|r| serde_json::to_vec(&r))
         })
         .map_err(|_| {
-            reject(
-                ApiError::Overloaded {
-                    retry_after: st.config.retry_after_secs,
-                },
-                "queue_full",
-            )
+            reject(ApiError::Overloaded {
+                retry_after: st.config.retry_after_secs,
+            })
         })?;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    let done = rx.await.map_err(|_| {
-        tracing::error!("solver worker dropped a job");
-        ApiError::Internal
-    })?;
+    let mut waiting = Waiting(ticket);
+    let done = waiting.0.done().await;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     drop(guard);
+    let done = done.ok_or_else(|| {
+        tracing::error!("solver worker dropped a job");
+        reject(ApiError::Internal)
+    })?;
     ::metrics::histogram!("solve_queue_wait_seconds").record(done.queued.as_secs_f64());
     match done.outcome {
-        Ok(Ok(mut result)) => {
-            result.queue_time_ms = done.queued.as_secs_f64() * 1e3;
-            Ok(Json(result))
+        Ok(Ok(Ok(json))) => Ok((
+            [(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            )],
+            json,
+        )
+            .into_response()),
+        Ok(Ok(Err(e))) => {
+            tracing::error!(error = %e, "result serialisation failed");
+            Err(reject(ApiError::Internal))
         }
-        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(vec![field]), "invalid")),
+        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(vec![field]))),
         Err(panic) => {
             tracing::error!(panic = %panic.0, "solver panicked");
-            Err(reject(ApiError::Internal, "panic"))
+            Err(reject(ApiError::Internal))
         }
     }
 }
 
-fn reject(e: ApiError, reason: &'static str) -> ApiError {
-    ::metrics::counter!("solve_rejections_total", "reason" => reason).increment(1);
+/// A queued solve whose handler is waiting. If the handler is dropped first
+/// (the client disconnected) while the solve is still queued, the solve is
+/// withdrawn, its slot freed at once, and it is counted as cancelled.
+struct Waiting<T>(Ticket<T>);
+
+impl<T> Drop for Waiting<T> {
+    fn drop(&mut self) {
+        if self.0.withdraw() {
+            ::metrics::counter!("solves_total", "status" => "cancelled").increment(1);
+            tracing::info!("client left while queued; solve withdrawn");
+        }
+    }
+}
+
+/// Count a rejected request by reason, and pass the error on.
+fn reject(e: ApiError) -> ApiError {
+    ::metrics::counter!("solve_rejections_total", "reason" => e.reason()).increment(1);
     e
 }
 
