@@ -162,9 +162,11 @@ pub struct Obstacle {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct SolverSpec {
-    /// Iteration limit. Default 100, at most 10000.
+    /// Iteration limit, at most 10000. Default 500: the seed converges in
+    /// 16, problems with several obstacles can take a few hundred, and the
+    /// time budget bounds the cost of a generous limit.
     #[serde(deserialize_with = "de_count")]
-    #[schema(default = 100, minimum = 0, maximum = 10000)]
+    #[schema(default = 500, minimum = 0, maximum = 10000)]
     pub max_iterations: usize,
     /// Relative cost change below which the solve has converged. Default 1e-9.
     #[schema(default = 1e-9, minimum = 0.0, exclusive_maximum = 1.0)]
@@ -238,7 +240,7 @@ impl Default for Weights {
 impl Default for SolverSpec {
     fn default() -> Self {
         Self {
-            max_iterations: 100,
+            max_iterations: 500,
             tolerance: 1e-9,
             time_limit_ms: None,
         }

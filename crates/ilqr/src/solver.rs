@@ -86,7 +86,7 @@ pub struct Options {
 impl Default for Options {
     fn default() -> Self {
         Self {
-            max_iterations: 100,
+            max_iterations: 500,
             tolerance: 1e-9,
             time_limit: None,
             mu_init: 1.0,

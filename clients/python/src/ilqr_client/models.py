@@ -160,10 +160,10 @@ class QuadrotorModel:
 
     Attributes:
         type: Model kind; only ``"quadrotor_2d"`` exists.
-        mass: Mass m in kg (> 0). Service default 1.
-        inertia: Moment of inertia I in kg·m² (> 0). Service default 1.
-        arm_length: Distance r from the centre to each rotor in m (> 0). Service default 1.
-        gravity: Gravitational acceleration g in m/s² (≥ 0). Service default 9.81.
+        mass: Mass m in kg (1e-6..1e6). Service default 1.
+        inertia: Moment of inertia I in kg·m² (1e-6..1e6). Service default 1.
+        arm_length: Distance r from the centre to each rotor in m (1e-6..1e6). Service default 1.
+        gravity: Gravitational acceleration g in m/s² (0..1e4). Service default 9.81.
         extra: Members this client does not know; sent as they are.
     """
 
@@ -190,9 +190,9 @@ class Weights:
     """Diagonal cost weights (no ½ factors).
 
     Attributes:
-        state: Diagonal of Q, 6 numbers ≥ 0. Service default all 1.
-        control: Diagonal of R, 2 numbers ≥ 0. Service default ``[0.1, 0.1]``.
-        terminal: Diagonal of Q_f, 6 numbers ≥ 0. Service default all 50000.
+        state: Diagonal of Q, 6 numbers in [0, 1e12]. Service default all 1.
+        control: Diagonal of R, 2 numbers in [0, 1e12]. Service default ``[0.1, 0.1]``.
+        terminal: Diagonal of Q_f, 6 numbers in [0, 1e12]. Service default all 50000.
         extra: Members this client does not know; sent as they are.
     """
 
@@ -217,8 +217,8 @@ class Obstacle:
     """A soft obstacle: adds ``weight·exp(−‖p − center‖)`` to every stage cost.
 
     Attributes:
-        center: ``[x, y]`` in m.
-        weight: Weight q ≥ 0 (cost units).
+        center: ``[x, y]`` in m, each of magnitude ≤ 1e6.
+        weight: Weight q in [0, 1e12] (cost units).
         extra: Members this client does not know; sent as they are.
     """
 
@@ -242,11 +242,12 @@ class SolverOptions:
     """When the solver stops (``solver`` in a problem).
 
     Attributes:
-        max_iterations: Iteration limit, 0..10000. Service default 100.
+        max_iterations: Iteration limit, 0..10000. Service default 500.
         tolerance: Relative cost change below which the solve has converged,
             in [0, 1). Service default 1e-9.
-        time_limit_ms: Wall-clock budget in ms; ``None`` means the service's
-            default budget (``--default-time-limit-ms``).
+        time_limit_ms: Wall-clock budget in ms, counted from when the service
+            admits the request (queue wait included); ``None`` means the
+            service's default budget (``--default-time-limit-ms``).
         extra: Members this client does not know; sent as they are.
     """
 
@@ -304,14 +305,14 @@ class Problem:
     Attributes:
         model: Dynamics model and its parameters.
         integrator: Discretisation; only ``"euler"`` exists.
-        dt: Time step in s (> 0). Service default 0.05.
+        dt: Time step in s, in (0, 10]. Service default 0.05.
         horizon: Number of control steps N (1..10000). Service default 100.
-        initial_state: 6 numbers. Service default ``[5, 0, 0, 0, 0, 0]``.
-        goal_state: 6 numbers. Service default ``[4, 9, 0, 0, 0, 0]``.
+        initial_state: 6 numbers of magnitude ≤ 1e6. Service default ``[5, 0, 0, 0, 0, 0]``.
+        goal_state: 6 numbers of magnitude ≤ 1e6. Service default ``[4, 9, 0, 0, 0, 0]``.
         weights: Diagonal cost weights.
         obstacles: Soft obstacles (at most 100); ``[]`` means none, ``None``
             the service default (one at (4.5, 4.5) with weight 1000).
-        initial_controls: Initial guess, N rows of ``[u1, u2]``.
+        initial_controls: Initial guess, N rows of ``[u1, u2]`` in N (magnitude ≤ 1e6).
         solver: Termination settings.
         output: Which optional parts of the result to return.
         extra: Members this client does not know; sent as they are.
