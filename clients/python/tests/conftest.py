@@ -1,9 +1,10 @@
 """Fixtures that run the real ilqr-service binary for the client tests.
 
-The binary is ``$ILQR_SERVICE_BIN`` or, by default, ``<repo>/target/release/ilqr-service``
-(build it with ``cargo build --release``). Each server gets a free local port,
-has its stderr captured to a log file (shown when start-up fails), is waited
-for on ``/healthz`` and is stopped with SIGTERM at the end.
+The binary is ``$ILQR_SERVICE_BIN`` or, by default, ``release/ilqr-service`` under
+``$CARGO_TARGET_DIR`` or ``<repo>/target`` (build it with ``cargo build --release``).
+Each server gets a free local port, has its output captured to a log file
+(shown when start-up fails), is waited for on ``/healthz`` and is stopped with
+SIGTERM at the end.
 """
 
 from __future__ import annotations
@@ -23,7 +24,9 @@ import requests
 from ilqr_client import Client, SolveResult
 
 REPO_ROOT = Path(__file__).resolve().parents[3]
-DEFAULT_BINARY = REPO_ROOT / "target" / "release" / "ilqr-service"
+# Where `cargo build --release` puts the binary: $CARGO_TARGET_DIR if set
+# (relative to the repository, as cargo reads it there), else ./target.
+DEFAULT_BINARY = REPO_ROOT / os.environ.get("CARGO_TARGET_DIR", "target") / "release" / "ilqr-service"
 
 #: Seed-scenario cost of ``POST /solve {}``.
 SEED_COST = 5520.212

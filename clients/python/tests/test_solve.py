@@ -173,3 +173,22 @@ def test_borrowed_session_is_not_closed(service: ServiceProcess, monkeypatch: py
     with Client(service.url, session=session) as c:
         assert c.health()
     assert closed == []
+
+
+def test_one_connection_serves_every_call(service: ServiceProcess) -> None:
+    """Session reuse: health, the default problem, a solve and a 422 all go
+    over the one keep-alive connection the client's pool opened."""
+    from ilqr_client import ValidationError
+
+    with Client(service.url) as c:
+        assert c.health()
+        problem = c.default_problem()
+        problem.horizon = 20
+        assert c.solve(problem).status in ("converged", "max_iterations")
+        with pytest.raises(ValidationError):
+            c.solve({"dt": -1})
+        assert c.ready()
+        pools = c.session.get_adapter(service.url).poolmanager.pools
+        (key,) = pools.keys()  # one pool: one host
+        assert pools[key].num_requests == 5
+        assert pools[key].num_connections == 1
