@@ -12,8 +12,10 @@
 # 3. IPOPT: `bench/casadi_ipopt.py --json --repeat $REPEAT` in the venv
 #    .venv-bench (created from bench/requirements.txt if missing): median
 #    wall time of opti.solve() and the cost of its controls re-rolled out.
-# Then prints both times, both costs, the time ratio (IPOPT / iLQR) and the
-# relative cost difference |J_ilqr - J_ipopt| / |J_ipopt|.
+# Then prints both times, both costs, the time ratio (IPOPT / iLQR), IPOPT's
+# cold time (building the NLP + its first solve, what a per-request service
+# would pay) against a new-Solver iLQR solve, and the relative cost
+# difference |J_ilqr - J_ipopt| / |J_ipopt|.
 #
 # The two solvers run back to back so that they see the same machine load;
 # on a shared machine compare the ratio, not the absolute times.
@@ -62,5 +64,7 @@ print(f"iLQR   cost  {j_r:.9f}  ({rust['status']}, {rust['iterations']} iteratio
 print(f"IPOPT  cost  {j_i:.9f}")
 print(f"time ratio IPOPT / iLQR   {ip_ms / (warm * 1e3):8.1f}x (reused Solver)"
       f"   {ip_ms / (cold * 1e3):8.1f}x (new Solver)")
+print(f"IPOPT  cold (build the NLP + first solve)  {ipopt['cold_ms']:9.4f} ms:"
+      f" {ipopt['cold_ms'] / (cold * 1e3):8.1f}x a new-Solver iLQR solve")
 print(f"relative cost difference  {abs(j_r - j_i) / abs(j_i):.3e}")
 EOF

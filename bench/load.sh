@@ -23,7 +23,8 @@
 #    on the same 2 cores) and in-process/server CPU per request (not
 #    affected by wrk or by other processes taking cores away).
 # 2. Overload: `--queue-capacity 2` (4 admission slots: 2 running, 2
-#    waiting) against `wrk -t2 -c32 -d${OVERLOAD_DURATION}s`: every answer
+#    waiting) against `wrk -t2 -c16 -d${OVERLOAD_DURATION}s` (4x the
+#    slots): every answer
 #    must be 200 or 503 and wrk must see no socket error or timeout; the
 #    server's RSS (`ps -o rss=`) is sampled every second, min/max printed.
 #
@@ -37,7 +38,7 @@ DURATION="${DURATION:-15}"
 FULL_DURATION="${FULL_DURATION:-10}"
 OVERLOAD_DURATION="${OVERLOAD_DURATION:-20}"
 CONNS="${CONNS:-8}"
-OVERLOAD_CONNS="${OVERLOAD_CONNS:-32}"
+OVERLOAD_CONNS="${OVERLOAD_CONNS:-16}"
 BIN=target/release/ilqr-service
 LUA=bench/post_seed.lua
 
@@ -152,10 +153,11 @@ rss_after="$(ps -o rss= -p "$SERVER_PID" | tr -d ' ')"
 stop_server
 
 # Report.
-python3 - "$tmp" "$ROUNDS" "$rss_idle" "$rss_after" <<'EOF'
+python3 - "$tmp" "$ROUNDS" "$rss_idle" "$rss_after" "$CONNS" "$OVERLOAD_CONNS" <<'EOF'
 import re, sys
 
 tmp, rounds, rss_idle, rss_after = sys.argv[1], int(sys.argv[2]), sys.argv[3], sys.argv[4]
+conns, overload_conns = sys.argv[5], sys.argv[6]
 
 def kv(text, tag):
     lines = re.findall(rf"^{tag} (.*)$", text, re.M)
@@ -194,7 +196,7 @@ def compare(label, body, http_runs, ins):
     print(f"  all rounds: HTTP {h:.1f} solves/s vs in-process {n:.1f} req/s -> {h / n:.1%} "
           f"(target >= 80%); CPU per request in-process/HTTP {c:.1%}")
 
-compare("saturation, lean body (2 workers, queue 64, wrk -c8)", "lean",
+compare(f"saturation, lean body (2 workers, queue 64, wrk -c{conns})", "lean",
         [wrk(f"http-lean-{i}") for i in range(1, rounds + 1)], inproc("lean"))
 compare("saturation, gains+trace body", "full", [wrk("http-full-1")], inproc("full"))
 
@@ -202,7 +204,7 @@ r, codes = wrk("overload")
 other = {k: v for k, v in codes.items() if k not in ("200", "503")}
 errors = {k: int(r[k]) for k in ("connect", "read", "write", "timeout")}
 rss = [int(x) for x in open(f"{tmp}/rss.txt").read().split()]
-print("== overload (2 workers, queue 2, wrk -c32)")
+print(f"== overload (2 workers, queue 2, wrk -c{overload_conns})")
 print(f"  200={codes.get('200', 0)} 503={codes.get('503', 0)} other={sum(other.values())} "
       f"{other or ''} socket errors {errors}")
 print(f"  {r['ok_per_s']:.1f} solves/s (200s), {r['requests'] / r['duration_s']:.1f} answers/s; "

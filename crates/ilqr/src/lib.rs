@@ -20,6 +20,8 @@
 //!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation, its
 //!   [`Options`], the [`Status`] that says how a solve ended and the per-iteration
 //!   [`TraceRow`].
+//! * `kernels` (private): the column-major small-matrix kernels the Riccati
+//!   step ([`riccati_step`]) is written in.
 //!
 //! The algorithm in [`solver`] knows nothing about quadrotors: it sees a
 //! [`DiscreteDynamics`] and a [`Cost`]. New models, integrators and cost terms
