@@ -55,6 +55,20 @@ impl Server {
         format!("http://{}{path}", self.addr)
     }
 
+    /// POST `body` to /solve in a task of its own (a client that waits
+    /// while the test goes on).
+    fn spawn_post(&self, body: Value) -> JoinHandle<reqwest::Response> {
+        let url = self.url("/solve");
+        tokio::spawn(async move {
+            reqwest::Client::new()
+                .post(url)
+                .json(&body)
+                .send()
+                .await
+                .unwrap()
+        })
+    }
+
     async fn post(&self, body: &Value) -> reqwest::Response {
         reqwest::Client::new()
             .post(self.url("/solve"))
@@ -288,29 +302,9 @@ async fn a_declared_oversized_body_is_refused_at_once() {
 #[tokio::test]
 async fn a_full_queue_answers_503_with_retry_after_at_once() {
     let s = Server::start(small(1, 1)).await;
-    let busy = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            reqwest::Client::new()
-                .post(url)
-                .json(&slow(1500))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
-    let queued = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            tokio::time::sleep(Duration::from_millis(200)).await;
-            reqwest::Client::new()
-                .post(url)
-                .json(&json!({}))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
+    let busy = s.spawn_post(slow(1500));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let queued = s.spawn_post(json!({}));
     tokio::time::sleep(Duration::from_millis(500)).await;
     let t = Instant::now();
     let res = s.post(&json!({})).await;
@@ -410,17 +404,7 @@ async fn a_client_that_disconnects_cancels_its_solve() {
 async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
     let s = Server::start(small(1, 1)).await;
     let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
-    let busy = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            reqwest::Client::new()
-                .post(url)
-                .json(&slow(2000))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
+    let busy = s.spawn_post(slow(2000));
     tokio::time::sleep(Duration::from_millis(300)).await;
     let impatient = reqwest::Client::builder()
         .timeout(Duration::from_millis(300))
@@ -458,17 +442,7 @@ async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
 #[tokio::test]
 async fn time_spent_queued_counts_against_the_budget() {
     let s = Server::start(small(1, 1)).await;
-    let busy = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            reqwest::Client::new()
-                .post(url)
-                .json(&slow(1000))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
+    let busy = s.spawn_post(slow(1000));
     tokio::time::sleep(Duration::from_millis(200)).await;
     let r: Value = s.post(&slow(300)).await.json().await.unwrap();
     assert_eq!(r["status"], "time_limit");
@@ -543,17 +517,7 @@ async fn shutdown_drains_in_flight_solves_then_stops() {
         ..small(2, 4)
     })
     .await;
-    let inflight = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            reqwest::Client::new()
-                .post(url)
-                .json(&slow(800))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
+    let inflight = s.spawn_post(slow(800));
     tokio::time::sleep(Duration::from_millis(200)).await;
     s.stop.take().unwrap().send(()).unwrap();
     tokio::time::sleep(Duration::from_millis(100)).await;
@@ -578,17 +542,7 @@ async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
         ..small(1, 1)
     })
     .await;
-    let inflight = tokio::spawn({
-        let url = s.url("/solve");
-        async move {
-            reqwest::Client::new()
-                .post(url)
-                .json(&slow(20_000))
-                .send()
-                .await
-                .unwrap()
-        }
-    });
+    let inflight = s.spawn_post(slow(20_000));
     tokio::time::sleep(Duration::from_millis(300)).await;
     let t = Instant::now();
     s.stop.take().unwrap().send(()).unwrap();

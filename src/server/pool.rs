@@ -234,6 +234,22 @@ fn panic_message(p: &Box<dyn std::any::Any + Send>) -> String {
 mod tests {
     use super::*;
     use std::sync::atomic::{AtomicUsize, Ordering};
+    use std::sync::mpsc;
+
+    /// Occupy a worker until the returned sender is used (or dropped); the
+    /// worker has started when this returns.
+    fn block_a_worker(pool: &Pool) -> (Ticket<()>, mpsc::Sender<()>) {
+        let (release_tx, release_rx) = mpsc::channel::<()>();
+        let (started_tx, started_rx) = mpsc::channel::<()>();
+        let ticket = pool
+            .submit(move |_| {
+                started_tx.send(()).unwrap();
+                let _ = release_rx.recv();
+            })
+            .unwrap();
+        started_rx.recv().unwrap();
+        (ticket, release_tx)
+    }
 
     #[tokio::test]
     async fn a_panicking_job_is_reported_and_the_worker_survives() {
@@ -251,20 +267,12 @@ mod tests {
     #[tokio::test]
     async fn a_full_queue_rejects_at_once() {
         let pool = Pool::new(1, 1).unwrap();
-        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
-        let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
-        let mut busy = pool
-            .submit(move |_| {
-                started_tx.send(()).unwrap();
-                release_rx.recv().unwrap();
-            })
-            .unwrap();
-        started_rx.recv().unwrap(); // the worker is busy
+        let (mut busy, release) = block_a_worker(&pool);
         let mut queued = pool.submit(|waited| waited).unwrap(); // takes the one slot
         assert_eq!(pool.queue_depth(), 1);
         assert!(matches!(pool.submit(|_| ()), Err(Full)));
         std::thread::sleep(Duration::from_millis(20));
-        release_tx.send(()).unwrap();
+        release.send(()).unwrap();
         busy.done().await.unwrap().outcome.unwrap();
         let done = queued.done().await.unwrap();
         // The job is told how long it waited, and so is its caller.
@@ -277,15 +285,7 @@ mod tests {
     async fn a_dropped_ticket_withdraws_its_job_and_frees_its_slot_at_once() {
         let pool = Pool::new(1, 1).unwrap();
         let ran = Arc::new(AtomicUsize::new(0));
-        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
-        let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
-        let mut blocker = pool
-            .submit(move |_| {
-                started_tx.send(()).unwrap();
-                release_rx.recv().unwrap();
-            })
-            .unwrap();
-        started_rx.recv().unwrap();
+        let (mut blocker, release) = block_a_worker(&pool);
         let r = Arc::clone(&ran);
         let abandoned = pool
             .submit(move |_| r.fetch_add(1, Ordering::SeqCst))
@@ -296,7 +296,7 @@ mod tests {
         assert_eq!(pool.queue_depth(), 0);
         let r = Arc::clone(&ran);
         let mut next = pool.submit(move |_| r.load(Ordering::SeqCst)).unwrap();
-        release_tx.send(()).unwrap();
+        release.send(()).unwrap();
         blocker.done().await.unwrap().outcome.unwrap();
         assert_eq!(next.done().await.unwrap().outcome, Ok(0));
         assert_eq!(ran.load(Ordering::SeqCst), 0, "the withdrawn job never ran");
@@ -305,18 +305,9 @@ mod tests {
     #[tokio::test]
     async fn a_running_job_cannot_be_withdrawn() {
         let pool = Pool::new(1, 0).unwrap();
-        let (release_tx, release_rx) = std::sync::mpsc::channel::<()>();
-        let (started_tx, started_rx) = std::sync::mpsc::channel::<()>();
-        let mut t = pool
-            .submit(move |_| {
-                started_tx.send(()).unwrap();
-                release_rx.recv().unwrap();
-                5
-            })
-            .unwrap();
-        started_rx.recv().unwrap();
+        let (mut t, release) = block_a_worker(&pool);
         assert!(!t.withdraw());
-        release_tx.send(()).unwrap();
-        assert_eq!(t.done().await.unwrap().outcome, Ok(5));
+        release.send(()).unwrap();
+        assert_eq!(t.done().await.unwrap().outcome, Ok(()));
     }
 }

@@ -23,7 +23,7 @@ pub struct StageExpansion<const NX: usize, const NU: usize> {
     pub l_x: SVector<f64, NX>,
     /// `∂l/∂u`.
     pub l_u: SVector<f64, NU>,
-    /// `∂²l/∂x²`.
+    /// `∂²l/∂x²`. Symmetric; the solver reads its lower triangle.
     pub l_xx: SMatrix<f64, NX, NX>,
     /// `∂²l/∂u²`.
     pub l_uu: SMatrix<f64, NU, NU>,
@@ -49,7 +49,8 @@ impl<const NX: usize, const NU: usize> StageExpansion<NX, NU> {
 pub struct TerminalExpansion<const NX: usize> {
     /// `∂l_f/∂x`.
     pub l_x: SVector<f64, NX>,
-    /// `∂²l_f/∂x²`.
+    /// `∂²l_f/∂x²`. Symmetric: it seeds `V_xx`, whose symmetry the
+    /// backward pass relies on.
     pub l_xx: SMatrix<f64, NX, NX>,
 }
 
