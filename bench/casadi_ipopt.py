@@ -183,7 +183,7 @@ def total_cost(p: Problem, xs: np.ndarray, us: np.ndarray) -> float:
     return stages + terminal_cost(p, xs[p.horizon])
 
 
-def build_nlp(p: Problem, x_guess: np.ndarray, u_guess: np.ndarray):
+def build_nlp(p: Problem, x_guess: np.ndarray, u_guess: np.ndarray, expand: bool = True):
     """The multiple-shooting NLP as a ready-to-solve casadi.Opti, and its X, U."""
     opti = ca.Opti()
     X = opti.variable(NX, p.horizon + 1)
@@ -204,7 +204,7 @@ def build_nlp(p: Problem, x_guess: np.ndarray, u_guess: np.ndarray):
         # Expand the MX graph to SX: scalar-only, much cheaper to evaluate in
         # IPOPT's callbacks. This is the usual way to use CasADi for speed and
         # keeps the comparison against a compiled iLQR fair.
-        "expand": True,
+        "expand": expand,
         # CasADi's own per-solve timing table would pollute stdout (and --json),
         # but keep the timers so sol.stats() has IPOPT's t_wall_total.
         "print_time": False,
@@ -236,6 +236,8 @@ def main() -> int:
     ap.add_argument("--problem", help="problem JSON (service request shape); default: the seed")
     ap.add_argument("--repeat", type=int, default=5, help="timed solves (default 5)")
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
+    ap.add_argument("--no-expand", action="store_true",
+                    help="evaluate the MX graph as built (CasADi's default) instead of expanding it to SX")
     args = ap.parse_args()
     if args.repeat < 1:
         ap.error("--repeat must be at least 1")
@@ -251,7 +253,7 @@ def main() -> int:
     initial_cost = total_cost(p, x_guess, u_guess)
 
     t0 = time.perf_counter()
-    opti, X, U = build_nlp(p, x_guess, u_guess)
+    opti, X, U = build_nlp(p, x_guess, u_guess, expand=not args.no_expand)
     build_ms = (time.perf_counter() - t0) * 1e3
 
     # Untimed first solve: it also constructs the nlpsol (SX expansion,
