@@ -35,3 +35,50 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
     assert_eq!(gains["items"]["minItems"], 2);
     assert_eq!(gains["items"]["items"]["maxItems"], 6);
 }
+
+/// The ranges in the schema are the ones validation enforces (utoipa's
+/// attributes need literals, so they are written twice).
+#[test]
+fn the_spec_states_the_validated_ranges() {
+    use ilqr_service::problem::{
+        MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_PARAMETER, MAX_STATE, MAX_WEIGHT, MIN_PARAMETER,
+    };
+    let spec: serde_json::Value =
+        serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
+    let schemas = &spec["components"]["schemas"];
+    let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
+    for field in ["mass", "inertia", "arm_length"] {
+        let f = &schemas["ModelSpec"]["properties"][field];
+        assert_eq!(num(&f["minimum"]), MIN_PARAMETER, "{field}");
+        assert_eq!(num(&f["maximum"]), MAX_PARAMETER, "{field}");
+    }
+    assert_eq!(
+        num(&schemas["ModelSpec"]["properties"]["gravity"]["maximum"]),
+        MAX_GRAVITY
+    );
+    let problem = &schemas["ProblemSpec"]["properties"];
+    assert_eq!(num(&problem["dt"]["maximum"]), MAX_DT);
+    for field in ["initial_state", "goal_state"] {
+        assert_eq!(
+            num(&problem[field]["items"]["maximum"]),
+            MAX_STATE,
+            "{field}"
+        );
+        assert_eq!(
+            num(&problem[field]["items"]["minimum"]),
+            -MAX_STATE,
+            "{field}"
+        );
+    }
+    assert_eq!(
+        num(&problem["initial_controls"]["items"]["items"]["maximum"]),
+        MAX_CONTROL
+    );
+    for field in ["state", "control", "terminal"] {
+        let w = &schemas["Weights"]["properties"][field]["items"];
+        assert_eq!(num(&w["maximum"]), MAX_WEIGHT, "{field}");
+    }
+    let obstacle = &schemas["Obstacle"]["properties"];
+    assert_eq!(num(&obstacle["weight"]["maximum"]), MAX_WEIGHT);
+    assert_eq!(num(&obstacle["center"]["items"]["maximum"]), MAX_STATE);
+}
