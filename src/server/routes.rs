@@ -13,7 +13,7 @@ use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::compression::CompressionLayer;
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
-use tower_http::trace::{DefaultOnFailure, DefaultOnResponse, TraceLayer};
+use tower_http::trace::{DefaultOnFailure, OnResponse, TraceLayer};
 use utoipa::{OpenApi, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -78,9 +78,11 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
             .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
             .layer(
                 TraceLayer::new_for_http()
-                    // One access-log line per request (status, latency) in
-                    // the request's span, so it carries the request id.
-                    .on_response(DefaultOnResponse::new().level(tracing::Level::INFO))
+                    // Every request leaves one line at `info` or above, in its
+                    // span (so with its request id), and no more: a solve
+                    // logs "solve finished", a 4xx logs here, a 5xx logs
+                    // through on_failure. Other successes log at `debug`.
+                    .on_response(AccessLog)
                     // A 503 under overload is back-pressure working, not a
                     // failure of this process: warn, don't error.
                     .on_failure(DefaultOnFailure::new().level(tracing::Level::WARN))
@@ -97,6 +99,23 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
             .layer(CompressionLayer::new())
             .layer(CatchPanicLayer::custom(|_| ApiError::Internal.into_response())),
     )
+}
+
+/// The per-response log line of the trace layer (see [`app`] for which
+/// level each status gets).
+#[derive(Clone, Copy)]
+struct AccessLog;
+
+impl<B> OnResponse<B> for AccessLog {
+    fn on_response(self, res: &axum::http::Response<B>, latency: Duration, _: &tracing::Span) {
+        let status = res.status().as_u16();
+        let latency_ms = latency.as_secs_f64() * 1e3;
+        if res.status().is_client_error() {
+            tracing::info!(status, latency_ms, "response");
+        } else {
+            tracing::debug!(status, latency_ms, "response");
+        }
+    }
 }
 
 /// A JSON problem body: checks the content type, honours the body limit and
