@@ -83,6 +83,13 @@ impl Server {
     }
 }
 
+fn body_limit(bytes: usize) -> Config {
+    Config {
+        max_body_bytes: bytes,
+        ..Config::default()
+    }
+}
+
 fn small(workers: usize, queue: usize) -> Config {
     Config {
         workers: Some(workers),
@@ -174,11 +181,7 @@ async fn responses_are_gzipped_when_asked() {
 
 #[tokio::test]
 async fn every_error_class_is_a_problem_document() {
-    let s = Server::start(Config {
-        max_body_bytes: 4096,
-        ..Config::default()
-    })
-    .await;
+    let s = Server::start(body_limit(4096)).await;
     let client = reqwest::Client::new();
     let raw = |body: &'static str, ct: Option<&'static str>| {
         let mut req = client.post(s.url("/solve")).body(body);
@@ -279,11 +282,7 @@ async fn every_error_class_is_a_problem_document() {
 #[tokio::test]
 async fn a_declared_oversized_body_is_refused_at_once() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let s = Server::start(Config {
-        max_body_bytes: 4096,
-        ..Config::default()
-    })
-    .await;
+    let s = Server::start(body_limit(4096)).await;
     let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
     sock.write_all(
         b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
