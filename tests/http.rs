@@ -69,6 +69,17 @@ impl Server {
         })
     }
 
+    /// POST `body` to /solve and hang up after 300 ms without an answer,
+    /// as an impatient client does.
+    async fn post_and_give_up(&self, body: &Value) {
+        let impatient = reqwest::Client::builder()
+            .timeout(Duration::from_millis(300))
+            .build()
+            .unwrap();
+        let gone = impatient.post(self.url("/solve")).json(body).send().await;
+        assert!(gone.unwrap_err().is_timeout(), "answered within 300 ms");
+    }
+
     async fn post(&self, body: &Value) -> reqwest::Response {
         reqwest::Client::new()
             .post(self.url("/solve"))
@@ -363,16 +374,7 @@ async fn the_time_budget_returns_the_best_trajectory_so_far() {
 async fn a_client_that_disconnects_cancels_its_solve() {
     let s = Server::start(small(1, 0)).await;
     let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
-    let impatient = reqwest::Client::builder()
-        .timeout(Duration::from_millis(300))
-        .build()
-        .unwrap();
-    let gone = impatient
-        .post(s.url("/solve"))
-        .json(&slow(20_000))
-        .send()
-        .await;
-    assert!(gone.unwrap_err().is_timeout());
+    s.post_and_give_up(&slow(20_000)).await;
 
     // The only worker must be free again well before the 20 s budget.
     let t = Instant::now();
@@ -405,16 +407,7 @@ async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
     let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
     let busy = s.spawn_post(slow(2000));
     tokio::time::sleep(Duration::from_millis(300)).await;
-    let impatient = reqwest::Client::builder()
-        .timeout(Duration::from_millis(300))
-        .build()
-        .unwrap();
-    let gone = impatient
-        .post(s.url("/solve"))
-        .json(&json!({}))
-        .send()
-        .await;
-    assert!(gone.unwrap_err().is_timeout());
+    s.post_and_give_up(&json!({})).await;
     tokio::time::sleep(Duration::from_millis(100)).await;
 
     // The worker is still on the 2 s solve, yet there is room in the queue.
