@@ -107,6 +107,16 @@ def test_edited_default_problem(client: Client) -> None:
     assert result.gains is None and result.trace is not None
 
 
+def test_warm_start_from_a_result_is_exact(client: Client, seed_result: SolveResult) -> None:
+    # The result's controls, posted back as the initial guess, roll out to
+    # the result's own cost bit for bit: every number survives JSON both
+    # ways (the service parses with serde_json's exact float parser).
+    problem = Problem(initial_controls=seed_result.controls, solver=SolverOptions(max_iterations=1))
+    warm = client.solve(problem)
+    assert warm.initial_cost == seed_result.cost
+    assert warm.cost <= seed_result.cost
+
+
 def test_output_flags_omit_gains_and_trace(client: Client, service: ServiceProcess) -> None:
     problem = {"output": {"gains": False, "trace": False}}
     result = client.solve(problem)
