@@ -11,8 +11,7 @@
 //! * `parse_validate`: `problem::parse` + `ProblemSpec::validate`;
 //! * `solve`: `solve::solve` (builds the problem, a fresh `Solver`, solves,
 //!   converts the trajectory, gains and trace to the wire types);
-//! * `serialize`: `serde_json::to_vec` of the `SolveResult` (axum's `Json`
-//!   does the same into a `BytesMut`);
+//! * `serialize`: [`SolveResult::to_json`], what the service's workers do;
 //! * `request`: all three in a row, once on 1 thread and once on 2 threads
 //!   at the same time. With `t=2`, each thread reports its own time per
 //!   request, so the 2-core in-process ceiling is `2 / median` requests per
@@ -149,7 +148,7 @@ fn handle(body: &[u8], cancel: &AtomicBool) -> usize {
     spec.validate(&Limits::default())
         .expect("the body is valid");
     let result = solve(&spec, None, cancel).expect("the seed solves");
-    serde_json::to_vec(&result).expect("serialises").len()
+    result.to_json().expect("serialises").len()
 }
 
 #[divan::bench(args = BODIES)]
@@ -173,7 +172,7 @@ fn solve_only(bencher: Bencher, body: Body) {
 #[divan::bench(args = BODIES)]
 fn serialize(bencher: Bencher, body: Body) {
     let result = body.result();
-    bencher.bench_local(|| serde_json::to_vec(black_box(&result)).expect("serialises"));
+    bencher.bench_local(|| black_box(&result).to_json().expect("serialises"));
 }
 
 /// The whole in-process path; `t=2` runs two requests at a time, one per

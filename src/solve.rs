@@ -2,6 +2,7 @@
 //! problem (model, integrator, cost terms), runs the solver and turns its
 //! output into the wire format. Shared by the CLI and the service.
 
+use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
@@ -182,7 +183,9 @@ pub fn solve(
         ..Options::default()
     };
 
-    let mut solver = Solver::<6, 2>::new(spec.horizon);
+    let mut solver = CACHED_SOLVER
+        .take()
+        .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
     let summary = solver
         .solve(&problem, &u_init, &options, cancel)
         .map_err(|e| Unsolvable(field_error(e, spec)))?;
@@ -225,7 +228,7 @@ pub fn solve(
             })
             .collect()
     });
-    Ok(SolveResult {
+    let result = Ok(SolveResult {
         status: summary.status.into(),
         cost: summary.cost,
         initial_cost: summary.initial_cost,
@@ -238,7 +241,43 @@ pub fn solve(
         trace,
         solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
         queue_time_ms: 0.0,
-    })
+    });
+    if spec.horizon <= CACHED_HORIZON {
+        CACHED_SOLVER.set(Some(solver));
+    }
+    result
+}
+
+/// Longest horizon whose solver workspace a thread keeps for its next solve
+/// (about 1.2 kB per step: at most ~1.2 MB per thread). Longer problems
+/// allocate their own; next to their solve time that costs nothing.
+const CACHED_HORIZON: usize = 1000;
+
+thread_local! {
+    /// The solver this thread used last, kept for its next solve. A fresh
+    /// workspace for the seed problem is ~120 kB allocated and zeroed per
+    /// solve, and glibc returns such blocks to the kernel when they are
+    /// freed, so every solve also paid page faults and TLB shootdowns. The
+    /// solver resizes its buffers to each problem's horizon (keeping their
+    /// capacity), and a panicking solve simply drops it.
+    static CACHED_SOLVER: Cell<Option<Solver<6, 2>>> = const { Cell::new(None) };
+}
+
+impl SolveResult {
+    /// The result as compact JSON, in a buffer sized for it up front (a
+    /// seed result is 16–50 kB; growing a small buffer by doubling copies
+    /// it several times).
+    pub fn to_json(&self) -> serde_json::Result<Vec<u8>> {
+        // ~20 bytes per number on the wire; 24 leaves room without waste.
+        let numbers = self.states.len() * 6
+            + self.controls.len() * 2
+            + self.gains.as_ref().map_or(0, |g| g.feedback.len() * 14)
+            + self.trace.as_ref().map_or(0, |t| t.len() * 8)
+            + self.closest_approach.len();
+        let mut buf = Vec::with_capacity(24 * numbers + 512);
+        serde_json::to_writer(&mut buf, self)?;
+        Ok(buf)
+    }
 }
 
 fn field_error(e: SolveError, spec: &ProblemSpec) -> FieldError {

@@ -242,7 +242,7 @@ async fn solve(
             }
             // Serialised here too: a long horizon's result is megabytes of
             // JSON, which is CPU work the async runtime should not do.
-            out.map(|r| serde_json::to_vec(&r))
+            out.map(|r| r.to_json())
         })
         .map_err(|_| {
             reject(ApiError::Overloaded {

@@ -1,0 +1,108 @@
+//! `solve::solve` keeps each thread's solver workspace for its next solve;
+//! nothing of one solve may leak into the next. And the wire JSON written
+//! into a pre-sized buffer is the result, whole.
+
+use std::sync::atomic::AtomicBool;
+
+use ilqr_service::problem::{ProblemSpec, parse};
+use ilqr_service::solve::{SolveResult, solve};
+use serde_json::json;
+
+fn spec(doc: serde_json::Value) -> ProblemSpec {
+    let spec = parse(doc.to_string().as_bytes()).unwrap();
+    spec.validate(&Default::default()).unwrap();
+    spec
+}
+
+/// The result without its wall-clock fields, which differ run to run.
+fn timeless(mut r: SolveResult) -> SolveResult {
+    r.solve_time_ms = 0.0;
+    for row in r.trace.iter_mut().flatten() {
+        row.elapsed_ms = 0.0;
+    }
+    r
+}
+
+fn solve_on(thread_specs: Vec<ProblemSpec>) -> Vec<SolveResult> {
+    std::thread::spawn(move || {
+        let cancel = AtomicBool::new(false);
+        thread_specs
+            .iter()
+            .map(|s| timeless(solve(s, None, &cancel).unwrap()))
+            .collect()
+    })
+    .join()
+    .unwrap()
+}
+
+#[test]
+fn a_reused_workspace_gives_the_answers_of_a_fresh_one() {
+    let problems = vec![
+        spec(json!({})),
+        // Shorter, other obstacles, its own initial controls: every buffer
+        // shrinks and holds the previous solve's numbers past the horizon.
+        spec(json!({
+            "horizon": 40,
+            "dt": 0.1,
+            "obstacles": [{"center": [4.8, 2.0], "weight": 500}, {"center": [4.0, 6.0], "weight": 800}],
+            "initial_controls": vec![[5.0, 5.2]; 40],
+        })),
+        // Longer than the cached size: solved on a workspace of its own.
+        spec(json!({"horizon": 1200, "dt": 0.005, "solver": {"max_iterations": 30}})),
+        // A time-limited solve that ends early leaves gains and trace half
+        // updated in the workspace.
+        spec(json!({"solver": {"max_iterations": 3}})),
+        spec(json!({})),
+    ];
+    // Every problem on a thread of its own: a fresh workspace each.
+    let fresh: Vec<SolveResult> = problems
+        .iter()
+        .map(|p| solve_on(vec![p.clone()]).remove(0))
+        .collect();
+    // All of them in a row on one thread, then again in reverse.
+    let reused = solve_on(problems.clone());
+    let reversed = solve_on(problems.iter().rev().cloned().collect());
+    for (i, f) in fresh.iter().enumerate() {
+        assert_eq!(&reused[i], f, "problem {i} after {i} others");
+        assert_eq!(
+            &reversed[problems.len() - 1 - i],
+            f,
+            "problem {i}, reversed"
+        );
+    }
+    assert_eq!(fresh[0], fresh[4]);
+    assert_eq!(fresh[3].iterations, 3);
+}
+
+#[test]
+fn the_wire_json_is_the_whole_result() {
+    let cancel = AtomicBool::new(false);
+    for doc in [
+        json!({}),
+        json!({"output": {"gains": false, "trace": false}}),
+        json!({"horizon": 1000, "dt": 0.005}),
+    ] {
+        let r = solve(&spec(doc.clone()), None, &cancel).unwrap();
+        let bytes = r.to_json().unwrap();
+        assert_eq!(bytes, serde_json::to_vec(&r).unwrap(), "{doc}");
+        let back: SolveResult = serde_json::from_slice(&bytes).unwrap();
+        assert_eq!(back, r, "{doc}");
+    }
+}
+
+#[test]
+fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
+    // Every number of the answer survives JSON both ways: parsed back by the
+    // same parser the service uses, the controls roll out to the same states
+    // and so to the same cost, bit for bit.
+    let cancel = AtomicBool::new(false);
+    let first = solve(&spec(json!({})), None, &cancel).unwrap();
+    let wire: serde_json::Value = serde_json::from_slice(&first.to_json().unwrap()).unwrap();
+    let warm = spec(json!({
+        "initial_controls": wire["controls"],
+        "solver": {"max_iterations": 1},
+    }));
+    let again = solve(&warm, None, &cancel).unwrap();
+    assert_eq!(again.initial_cost.to_bits(), first.cost.to_bits());
+    assert!(again.cost <= first.cost);
+}
