@@ -62,6 +62,10 @@ struct Shared {
 struct State {
     queue: VecDeque<(u64, Job)>,
     running: usize,
+    /// Workers blocked on `wake`. `Condvar::notify_one` is a system call
+    /// even with nobody waiting; under load every worker is busy and the
+    /// next job is taken from the queue without one.
+    idle: usize,
     next_id: u64,
     closed: bool,
 }
@@ -85,6 +89,7 @@ impl Pool {
             state: Mutex::new(State {
                 queue: VecDeque::with_capacity(capacity),
                 running: 0,
+                idle: 0,
                 next_id: 0,
                 closed: false,
             }),
@@ -133,8 +138,11 @@ impl Pool {
         let id = st.next_id;
         st.next_id += 1;
         st.queue.push_back((id, job));
+        let someone_waits = st.idle > 0;
         drop(st);
-        self.shared.wake.notify_one();
+        if someone_waits {
+            self.shared.wake.notify_one();
+        }
         Ok(Ticket {
             rx: done_rx,
             id,
@@ -212,7 +220,9 @@ fn worker(shared: &Shared) {
                 if st.closed {
                     return;
                 }
+                st.idle += 1;
                 st = shared.wake.wait(st).unwrap_or_else(|p| p.into_inner());
+                st.idle -= 1;
             }
         };
         // The job itself catches panics and gives its slot back.
