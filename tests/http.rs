@@ -178,16 +178,75 @@ async fn gains_and_trace_can_be_left_out() {
 
 #[tokio::test]
 async fn responses_are_gzipped_when_asked() {
+    use std::io::Read;
     let s = Server::default().await;
-    let res = reqwest::Client::new()
-        .post(s.url("/solve"))
-        .header("accept-encoding", "gzip")
-        .json(&json!({}))
+    let client = reqwest::Client::new();
+    let post = |accept: Option<&'static str>| {
+        let mut req = client
+            .post(s.url("/solve"))
+            .json(&json!({"solver": {"max_iterations": 3}}));
+        if let Some(a) = accept {
+            req = req.header("accept-encoding", a);
+        }
+        req.send()
+    };
+    // The answer without its wall-clock fields, which differ per solve.
+    let timeless = |mut v: Value| {
+        v["solve_time_ms"] = json!(0);
+        v["queue_time_ms"] = json!(0);
+        for row in v["trace"].as_array_mut().unwrap() {
+            row["elapsed_ms"] = json!(0);
+        }
+        v
+    };
+
+    let plain = post(None).await.unwrap();
+    assert_eq!(plain.headers()["vary"], "accept-encoding");
+    assert!(plain.headers().get("content-encoding").is_none());
+    let plain: Value = plain.json().await.unwrap();
+
+    for accept in [
+        "gzip",
+        "deflate, gzip;q=0.5",
+        "br;q=1.0, *;q=0.1",
+        "GZIP",
+        "gzip, identity;q=0",
+    ] {
+        let res = post(Some(accept)).await.unwrap();
+        assert_eq!(res.status(), 200, "{accept}");
+        assert_eq!(res.headers()["content-encoding"], "gzip", "{accept}");
+        assert_eq!(res.headers()["vary"], "accept-encoding", "{accept}");
+        let gz = res.bytes().await.unwrap();
+        let mut json = Vec::new();
+        flate2::read::GzDecoder::new(&gz[..])
+            .read_to_end(&mut json)
+            .unwrap();
+        let v: Value = serde_json::from_slice(&json).unwrap();
+        assert_eq!(timeless(v), timeless(plain.clone()), "{accept}");
+    }
+    // The last two admit nothing this service sends: they get identity,
+    // not a 406 after the solve.
+    for accept in [
+        "identity",
+        "gzip;q=0",
+        "gzip;q=0, *;q=1",
+        "deflate",
+        "*;q=0",
+        "identity;q=0",
+    ] {
+        let res = post(Some(accept)).await.unwrap();
+        assert_eq!(res.status(), 200, "{accept}");
+        assert!(res.headers().get("content-encoding").is_none(), "{accept}");
+        let v: Value = res.json().await.unwrap();
+        assert_eq!(timeless(v), timeless(plain.clone()), "{accept}");
+    }
+    let health = client
+        .get(s.url("/healthz"))
+        .header("accept-encoding", "*;q=0")
         .send()
         .await
         .unwrap();
-    assert_eq!(res.status(), 200);
-    assert_eq!(res.headers()["content-encoding"], "gzip");
+    assert_eq!(health.status(), 200);
 }
 
 #[tokio::test]
