@@ -96,7 +96,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                 }),
             )
             .layer(PropagateRequestIdLayer::x_request_id())
-            .map_request(identity_when_nothing_fits)
+            .map_request(canonical_accept_encoding)
             // Small documents only (`/openapi.json`, `/metrics`, errors):
             // `/solve` answers are gzipped on the solver pool, see
             // [`encode`], and this layer leaves encoded bodies alone.
@@ -210,6 +210,7 @@ async fn solve(
     headers: HeaderMap,
     ProblemJson(spec): ProblemJson,
 ) -> Result<Response, ApiError> {
+    // Canonical by now (see `canonical_accept_encoding`): `gzip` or absent.
     let gzip = codings(&headers).gzip;
     if st.is_draining() {
         return Err(reject(ApiError::ShuttingDown));
@@ -299,7 +300,9 @@ async fn solve(
 /// What a request's `Accept-Encoding` admits, of the two codings this
 /// service sends (RFC 9110 §12.5.3). A coding is admitted when it is named
 /// with a non-zero `q`, or not named while `*` has a non-zero `q`; identity
-/// is admitted unless `q=0` excludes it that way.
+/// is admitted unless `q=0` excludes it that way. An item whose `q` is not a
+/// valid qvalue (`0`–`1`, at most three decimals) is ignored, and the first
+/// of repeated codings counts, as in tower-http's own parser.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 struct Codings {
     gzip: bool,
@@ -313,17 +316,26 @@ fn codings(headers: &HeaderMap) -> Codings {
         for item in value.split(',') {
             let mut parts = item.split(';');
             let coding = parts.next().unwrap_or("").trim();
-            let q = parts
-                .filter_map(|p| p.trim().strip_prefix("q="))
-                .find_map(|q| q.trim().parse::<f32>().ok())
-                .unwrap_or(1.0);
-            if coding.eq_ignore_ascii_case("gzip") || coding.eq_ignore_ascii_case("x-gzip") {
-                gzip = Some(q);
-            } else if coding.eq_ignore_ascii_case("identity") {
-                identity = Some(q);
-            } else if coding == "*" {
-                any = Some(q);
+            let mut q = Some(1.0);
+            for param in parts {
+                if let Some((name, v)) = param.split_once('=')
+                    && name.trim().eq_ignore_ascii_case("q")
+                {
+                    q = qvalue(v.trim());
+                }
             }
+            let Some(q) = q else { continue };
+            let slot =
+                if coding.eq_ignore_ascii_case("gzip") || coding.eq_ignore_ascii_case("x-gzip") {
+                    &mut gzip
+                } else if coding.eq_ignore_ascii_case("identity") {
+                    &mut identity
+                } else if coding == "*" {
+                    &mut any
+                } else {
+                    continue;
+                };
+            slot.get_or_insert(q);
         }
     }
     Codings {
@@ -332,15 +344,31 @@ fn codings(headers: &HeaderMap) -> Codings {
     }
 }
 
-/// A request that admits neither gzip nor identity (`*;q=0`) is answered
-/// in identity, as if it had no `Accept-Encoding`. RFC 9110 allows a 406
-/// instead, and tower-http's compression layer sends one, but only after the
-/// handler has run (a whole solve for nothing) and with the handler's body
-/// under it; a readable answer serves such a client better.
-fn identity_when_nothing_fits(mut req: Request) -> Request {
-    let c = codings(req.headers());
-    if !c.gzip && !c.identity {
-        req.headers_mut().remove(header::ACCEPT_ENCODING);
+/// RFC 9110 §12.4.2: `0` to `1` with at most three decimals.
+fn qvalue(s: &str) -> Option<f32> {
+    let (int, frac) = s.split_once('.').unwrap_or((s, ""));
+    let valid = match int {
+        "0" => frac.len() <= 3 && frac.bytes().all(|b| b.is_ascii_digit()),
+        "1" => frac.len() <= 3 && frac.bytes().all(|b| b == b'0'),
+        _ => false,
+    };
+    if valid { s.parse().ok() } else { None }
+}
+
+/// Rewrites `Accept-Encoding` to what this service will do: `gzip` if the
+/// request admits it, otherwise no header (identity). The `/solve` handler
+/// and tower-http's compression layer then decide from the same value, and
+/// a request that admits neither gzip nor identity (`*;q=0`) is answered in
+/// identity. RFC 9110 allows a 406 instead, and tower-http's layer sends
+/// one, but only after the handler has run (a whole solve for nothing) and
+/// with the handler's body under it; a readable answer serves such a client
+/// better.
+fn canonical_accept_encoding(mut req: Request) -> Request {
+    let gzip = codings(req.headers()).gzip;
+    let headers = req.headers_mut();
+    headers.remove(header::ACCEPT_ENCODING);
+    if gzip {
+        headers.insert(header::ACCEPT_ENCODING, HeaderValue::from_static("gzip"));
     }
     req
 }
