@@ -187,12 +187,20 @@ pub fn solve(
         ..Options::default()
     };
 
-    let mut solver = CACHED_SOLVER
-        .take()
+    let cacheable = spec.horizon <= CACHED_HORIZON;
+    let mut solver = cacheable
+        .then(|| CACHED_SOLVER.take())
+        .flatten()
         .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
-    let summary = solver
-        .solve(&problem, &u_init, &options, cancel)
-        .map_err(|e| Unsolvable(field_error(e, spec)))?;
+    let summary = match solver.solve(&problem, &u_init, &options, cancel) {
+        Ok(summary) => summary,
+        Err(e) => {
+            if cacheable {
+                CACHED_SOLVER.set(Some(solver));
+            }
+            return Err(Unsolvable(field_error(e, spec)));
+        }
+    };
 
     let states: Vec<[f64; 6]> = solver.states().iter().map(|x| (*x).into()).collect();
     let position = |x: &[f64; 6], c: [f64; 2]| (x[0] - c[0]).hypot(x[1] - c[1]);
@@ -246,7 +254,7 @@ pub fn solve(
         solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
         queue_time_ms: 0.0,
     });
-    if spec.horizon <= CACHED_HORIZON {
+    if cacheable {
         CACHED_SOLVER.set(Some(solver));
     }
     result

@@ -49,8 +49,8 @@ fn a_reused_workspace_gives_the_answers_of_a_fresh_one() {
         })),
         // Longer than the cached size: solved on a workspace of its own.
         spec(json!({"horizon": 1200, "dt": 0.005, "solver": {"max_iterations": 30}})),
-        // A time-limited solve that ends early leaves gains and trace half
-        // updated in the workspace.
+        // A solve stopped by max_iterations leaves gains and trace of an
+        // unfinished solve in the workspace.
         spec(json!({"solver": {"max_iterations": 3}})),
         spec(json!({})),
     ];

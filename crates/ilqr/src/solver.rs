@@ -241,16 +241,23 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         s
     }
 
+    /// Buffers of exactly `n` steps. Growing reserves exactly what is needed
+    /// (`Vec::resize` alone may double the capacity), so a solver kept for
+    /// reuse holds no more than its longest horizon.
     fn resize(&mut self, n: usize) {
-        self.xs.resize(n + 1, SVector::zeros());
-        self.xs_new.resize(n + 1, SVector::zeros());
-        self.us.resize(n, SVector::zeros());
-        self.us_new.resize(n, SVector::zeros());
-        self.A.resize(n, SMatrix::zeros());
-        self.B.resize(n, SMatrix::zeros());
-        self.stage.resize(n, StageExpansion::zeros());
-        self.K.resize(n, SMatrix::zeros());
-        self.d.resize(n, SVector::zeros());
+        fn exact<T: Clone>(v: &mut Vec<T>, len: usize, fill: T) {
+            v.reserve_exact(len.saturating_sub(v.len()));
+            v.resize(len, fill);
+        }
+        exact(&mut self.xs, n + 1, SVector::zeros());
+        exact(&mut self.xs_new, n + 1, SVector::zeros());
+        exact(&mut self.us, n, SVector::zeros());
+        exact(&mut self.us_new, n, SVector::zeros());
+        exact(&mut self.A, n, SMatrix::zeros());
+        exact(&mut self.B, n, SMatrix::zeros());
+        exact(&mut self.stage, n, StageExpansion::zeros());
+        exact(&mut self.K, n, SMatrix::zeros());
+        exact(&mut self.d, n, SVector::zeros());
     }
 
     /// States `x_0..x_N` of the last solve.
