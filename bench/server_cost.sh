@@ -48,10 +48,17 @@ for round in $(seq "$ROUNDS"); do
     env "$@" "$BIN" serve --bind "127.0.0.1:$port" --workers 2 --queue-capacity 64 \
         >"$tmp/server.log" 2>&1 &
     SERVER_PID=$!
+    up=""
     for _ in $(seq 100); do
-        "$BIN" healthcheck --addr "127.0.0.1:$port" 2>/dev/null && break
+        if "$BIN" healthcheck --addr "127.0.0.1:$port" 2>/dev/null; then up=1; break; fi
+        kill -0 "$SERVER_PID" 2>/dev/null || break
         sleep 0.1
     done
+    if [[ -z "$up" ]]; then
+        echo "the server did not come up; its log:" >&2
+        cat "$tmp/server.log" >&2
+        exit 1
+    fi
     wrk -t2 -c8 -d2s -s bench/post_seed.lua "$url" -- "$BODY" >/dev/null
     read -r u0 s0 f0 < <(awk '{ print $14, $15, $10 }' /proc/"$SERVER_PID"/stat)
     read -r v0 n0 < <(switches "$SERVER_PID")
@@ -63,6 +70,11 @@ for round in $(seq "$ROUNDS"); do
     wait "$SERVER_PID" 2>/dev/null || true
     SERVER_PID=""
     read -r wu ws <"$tmp/wrk.time"
+    if ! grep -q '^RESULT requests=[1-9]' "$tmp/wrk.out"; then
+        echo "wrk got no answers; its output:" >&2
+        cat "$tmp/wrk.out" >&2
+        exit 1
+    fi
     python3 - "$round" "$BODY" "$*" "$(grep '^RESULT' "$tmp/wrk.out")" \
         "$u0" "$u1" "$s0" "$s1" "$f0" "$f1" "$v0" "$v1" "$n0" "$n1" "$wu" "$ws" "$(getconf CLK_TCK)" <<'EOF'
 import sys

@@ -49,10 +49,11 @@ pub struct Config {
     #[arg(long, env = "ILQR_WORKERS")]
     pub workers: Option<usize>,
     /// Async runtime threads, which accept connections, parse and validate
-    /// requests and write answers; solves never run on them (default: one
-    /// per 8 cores, at least 1). A request costs them tens of microseconds
-    /// next to a solve's milliseconds, and every extra runtime thread adds
-    /// context switches that a 2-core machine pays for in throughput.
+    /// requests and write answers; solves never run on them (default: cores
+    /// / 8 rounded up, so 1 up to 8 cores). A request costs them tens of
+    /// microseconds next to a solve's milliseconds; on 2 cores a second
+    /// runtime thread doubled the context switches per request and added
+    /// ~25 µs of kernel time to each (bench/server_cost.sh).
     #[arg(long, env = "ILQR_RUNTIME_THREADS")]
     pub runtime_threads: Option<std::num::NonZeroUsize>,
     /// Solves that may wait for a worker before new ones get 503.
