@@ -16,6 +16,11 @@
 //!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
 //!   cancelled (they answer 200 with status `cancelled`), then the server
 //!   stops.
+//! * **CPU work stays on the pool.** A worker serialises its result and, if
+//!   the request's `Accept-Encoding` admits gzip, compresses it; the runtime
+//!   only moves bytes. So one runtime thread (the default up to 8 cores)
+//!   keeps `/healthz` answering in about a millisecond behind megabyte
+//!   answers, and takes few time slices from the solvers.
 
 mod error;
 mod metrics;
