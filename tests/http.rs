@@ -250,6 +250,36 @@ async fn responses_are_gzipped_when_asked() {
 }
 
 #[tokio::test]
+async fn gzip_level_0_sends_everything_uncompressed() {
+    let s = Server::start(Config {
+        gzip_level: 0,
+        ..Config::default()
+    })
+    .await;
+    let client = reqwest::Client::new();
+    let solve = client
+        .post(s.url("/solve"))
+        .header("accept-encoding", "gzip")
+        .json(&json!({"solver": {"max_iterations": 2}}))
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(solve.status(), 200);
+    assert!(solve.headers().get("content-encoding").is_none());
+    let v: Value = solve.json().await.unwrap();
+    assert_eq!(v["iterations"], 2);
+    let doc = client
+        .get(s.url("/openapi.json"))
+        .header("accept-encoding", "gzip")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(doc.status(), 200);
+    assert!(doc.headers().get("content-encoding").is_none());
+    let _: Value = doc.json().await.unwrap();
+}
+
+#[tokio::test]
 async fn every_error_class_is_a_problem_document() {
     let s = Server::start(body_limit(4096)).await;
     let client = reqwest::Client::new();

@@ -66,6 +66,7 @@ pub fn openapi_json() -> String {
 /// The whole application: routes, docs and middleware.
 pub fn app(state: Arc<AppState>) -> axum::Router {
     let body_limit = state.config.max_body_bytes;
+    let gzip_level = state.config.gzip_level;
     let (router, spec) = api_router().with_state(state).split_for_parts();
     let router = router
         .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
@@ -96,11 +97,11 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                 }),
             )
             .layer(PropagateRequestIdLayer::x_request_id())
-            .map_request(canonical_accept_encoding)
+            .map_request(move |req| canonical_accept_encoding(req, gzip_level))
             // Small documents only (`/openapi.json`, `/metrics`, errors):
             // `/solve` answers are gzipped on the solver pool, see
             // [`encode`], and this layer leaves encoded bodies alone.
-            .layer(CompressionLayer::new().quality(CompressionLevel::Precise(GZIP_LEVEL as i32)))
+            .layer(CompressionLayer::new().quality(CompressionLevel::Precise(gzip_level as i32)))
             .layer(CatchPanicLayer::custom(|_| ApiError::Internal.into_response())),
     )
 }
@@ -212,6 +213,7 @@ async fn solve(
 ) -> Result<Response, ApiError> {
     // Canonical by now (see `canonical_accept_encoding`): `gzip` or absent.
     let gzip = codings(&headers).gzip;
+    let level = st.config.gzip_level;
     if st.is_draining() {
         return Err(reject(ApiError::ShuttingDown));
     }
@@ -249,7 +251,7 @@ async fn solve(
             }
             // Serialised and compressed here too: a long horizon's result
             // is megabytes of JSON, CPU work the async runtime should not do.
-            out.map(|r| r.to_json().map(|json| encode(json, gzip)))
+            out.map(|r| r.to_json().map(|json| encode(json, gzip, level)))
         })
         .map_err(|_| {
             reject(ApiError::Overloaded {
@@ -356,15 +358,16 @@ fn qvalue(s: &str) -> Option<f32> {
 }
 
 /// Rewrites `Accept-Encoding` to what this service will do: `gzip` if the
-/// request admits it, otherwise no header (identity). The `/solve` handler
+/// request admits it and `gzip_level` is not 0, otherwise no header
+/// (identity). The `/solve` handler
 /// and tower-http's compression layer then decide from the same value, and
 /// a request that admits neither gzip nor identity (`*;q=0`) is answered in
 /// identity. RFC 9110 allows a 406 instead, and tower-http's layer sends
 /// one, but only after the handler has run (a whole solve for nothing) and
 /// with the handler's body under it; a readable answer serves such a client
 /// better.
-fn canonical_accept_encoding(mut req: Request) -> Request {
-    let gzip = codings(req.headers()).gzip;
+fn canonical_accept_encoding(mut req: Request, gzip_level: u32) -> Request {
+    let gzip = gzip_level > 0 && codings(req.headers()).gzip;
     let headers = req.headers_mut();
     headers.remove(header::ACCEPT_ENCODING);
     if gzip {
@@ -379,26 +382,21 @@ struct Encoded {
     gzip: bool,
 }
 
-/// gzip level. On result JSON (mostly 17-digit floats) with flate2's zlib-rs
-/// backend, level 3 compresses the seed answer 2.1× in 0.6 ms and a 4.4 MB
-/// answer in 59 ms; level 6 is 2.1× too but 85 ms on the large one, level 1
-/// only 1.4×. (miniz_oxide, flate2's default backend, took 2.6 ms and 351 ms
-/// at level 6; the seed solve itself takes 0.45 ms.)
-const GZIP_LEVEL: u32 = 3;
-
-/// Gzip `json` if the client accepts it. Runs on the solver pool, where CPU
+/// Gzip `json` at `level` if the client accepts it (the level is
+/// `Config::gzip_level`, 3 by default: on result JSON, mostly 17-digit
+/// floats, flate2's zlib-rs backend compresses the seed answer 2.1× in
+/// 0.6 ms and a 4.4 MB answer in 59 ms at 3; level 6 is 2.1× too but 85 ms on
+/// the large one, level 1 only 1.4×; miniz_oxide, flate2's default backend,
+/// took 2.6 ms and 351 ms at level 6). Runs on the solver pool, where CPU
 /// work belongs: on the async runtime a large answer held up every other
 /// request (`/healthz` took up to 380 ms behind one 4.4 MB answer).
-fn encode(json: Vec<u8>, gzip: bool) -> Encoded {
+fn encode(json: Vec<u8>, gzip: bool, level: u32) -> Encoded {
     use flate2::{Compression, write::GzEncoder};
     use std::io::Write;
     if !gzip {
         return Encoded { bytes: json, gzip };
     }
-    let mut encoder = GzEncoder::new(
-        Vec::with_capacity(json.len() / 2),
-        Compression::new(GZIP_LEVEL),
-    );
+    let mut encoder = GzEncoder::new(Vec::with_capacity(json.len() / 2), Compression::new(level));
     // Writing into a Vec does not fail; if it somehow did, send plain JSON.
     match encoder.write_all(&json).and_then(|()| encoder.finish()) {
         Ok(bytes) => Encoded { bytes, gzip: true },
