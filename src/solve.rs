@@ -11,8 +11,8 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use ilqr::{
-    ControlEffort, Euler, ExpObstacle, Objective, Options, Problem, Quadrotor2D, SolveError,
-    Solver, StateTracking, TerminalTracking,
+    ControlEffort, Cost, DiscreteDynamics, Euler, ExpObstacle, Objective, Options, Problem,
+    Quadrotor2D, SolveError, Solver, StateTracking, TerminalTracking,
 };
 use nalgebra::{SVector, Vector2};
 use serde::{Deserialize, Serialize};
@@ -192,15 +192,25 @@ pub fn solve(
         .then(|| CACHED_SOLVER.take())
         .flatten()
         .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
-    let summary = match solver.solve(&problem, &u_init, &options, cancel) {
-        Ok(summary) => summary,
-        Err(e) => {
-            if cacheable {
-                CACHED_SOLVER.set(Some(solver));
-            }
-            return Err(Unsolvable(field_error(e, spec)));
-        }
-    };
+    let result = solve_on(&mut solver, spec, &problem, &u_init, &options, cancel);
+    if cacheable {
+        CACHED_SOLVER.set(Some(solver));
+    }
+    result
+}
+
+/// Run `solver` on the built problem and convert what it found.
+fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
+    solver: &mut Solver<6, 2>,
+    spec: &ProblemSpec,
+    problem: &Problem<D, C, 6>,
+    u_init: &[Vector2<f64>],
+    options: &Options,
+    cancel: &AtomicBool,
+) -> Result<SolveResult, Unsolvable> {
+    let summary = solver
+        .solve(problem, u_init, options, cancel)
+        .map_err(|e| Unsolvable(field_error(e, spec)))?;
 
     let states: Vec<[f64; 6]> = solver.states().iter().map(|x| (*x).into()).collect();
     let position = |x: &[f64; 6], c: [f64; 2]| (x[0] - c[0]).hypot(x[1] - c[1]);
@@ -240,7 +250,7 @@ pub fn solve(
             })
             .collect()
     });
-    let result = Ok(SolveResult {
+    Ok(SolveResult {
         status: summary.status.into(),
         cost: summary.cost,
         initial_cost: summary.initial_cost,
@@ -253,11 +263,7 @@ pub fn solve(
         trace,
         solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
         queue_time_ms: 0.0,
-    });
-    if cacheable {
-        CACHED_SOLVER.set(Some(solver));
-    }
-    result
+    })
 }
 
 /// Longest horizon whose solver workspace a thread keeps for its next solve
