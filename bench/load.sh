@@ -19,7 +19,7 @@
 #       lean` (body {"output":{"gains":false,"trace":false}}): 200 answers
 #       per second, p50/p99, and the server's CPU time from /proc/PID/stat.
 #       The script does not count statuses here (see bench/post_seed.lua:
-#       a Lua `response` callback costs wrk ~10 us per answer on the same
+#       a Lua `response` callback costs wrk 10-20 us per answer on the same
 #       cores); wrk's own tally of statuses >= 400 gives the 200s.
 #    Then the same FULL_ROUNDS times (default 2) for the `full` body (gains
 #    and trace in the answer).

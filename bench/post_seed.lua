@@ -11,7 +11,7 @@
 -- own Lua state's `statuses` table; `done` (in the main state) collects them
 -- through the thread objects kept by `setup`. That needs a `response`
 -- callback, and with one defined wrk parses every header and copies every
--- body into Lua: about 10 us of CPU per answer, taken from the same two
+-- body into Lua: 10-20 us of CPU per answer, taken from the same two
 -- cores the server runs on. So saturation runs leave "count" off and rely
 -- on wrk's own tally, which is exact for this server: wrk counts every
 -- status >= 400 in errors.status, and /solve answers 200 or >= 400.
