@@ -167,7 +167,7 @@ def busy_problem(time_limit_ms: int) -> Dict[str, Any]:
 
     The longest horizon and 100 far-away obstacles make each iteration slow
     (~0.1 s), and tolerance 0 with many iterations keeps the solver going, so
-    it ends at its time limit: stopping early with ``no_progress`` takes ~40
+    it ends at its time limit: stopping early with ``no_progress`` takes 40-60
     iterations (several seconds). Gains and trace are left out of the answer.
     """
     return {
