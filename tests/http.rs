@@ -648,3 +648,167 @@ async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
         .unwrap()
         .unwrap();
 }
+
+/// Read from a raw connection until the server closes it; the time it took.
+async fn time_until_closed(mut conn: tokio::net::TcpStream, within: Duration) -> Duration {
+    use tokio::io::AsyncReadExt;
+    let t = Instant::now();
+    let mut buf = vec![0u8; 4096];
+    tokio::time::timeout(within, async {
+        loop {
+            match conn.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(_) => {}
+            }
+        }
+    })
+    .await
+    .expect("the server kept the stalled connection open");
+    t.elapsed()
+}
+
+fn read_timeout(secs: u64) -> Config {
+    Config {
+        read_timeout_secs: secs,
+        ..Config::default()
+    }
+}
+
+/// A client that never finishes its headers is cut off after the read
+/// timeout (it used to hold its connection forever: `axum::serve` sets no
+/// hyper timer).
+#[tokio::test]
+async fn a_client_stalled_in_its_headers_is_disconnected() {
+    use tokio::io::AsyncWriteExt;
+    let s = Server::start(read_timeout(1)).await;
+    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    conn.write_all(b"POST /solve HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .unwrap();
+    let took = time_until_closed(conn, Duration::from_secs(5)).await;
+    assert!(took >= Duration::from_millis(900), "{took:?}");
+}
+
+/// A client that stalls mid-body gets a 408 problem after the read timeout.
+#[tokio::test]
+async fn a_client_stalled_in_its_body_gets_408() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = Server::start(read_timeout(1)).await;
+    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    conn.write_all(
+        b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"dt\":",
+    )
+    .await
+    .unwrap();
+    let mut answer = Vec::new();
+    let read = tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer)).await;
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(read.is_ok(), "no answer within 5 s");
+    assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
+    assert!(answer.contains("application/problem+json"), "{answer}");
+    assert!(
+        answer.contains("urn:ilqr-service:request-timeout"),
+        "{answer}"
+    );
+}
+
+/// Shutdown is bounded whatever the clients do: a connection stalled in its
+/// headers used to keep the server from ever returning.
+#[tokio::test]
+async fn shutdown_is_not_held_up_by_a_stalled_client() {
+    use tokio::io::AsyncWriteExt;
+    let mut s = Server::start(Config {
+        shutdown_grace_secs: 0,
+        read_timeout_secs: 3600,
+        ..Config::default()
+    })
+    .await;
+    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    conn.write_all(b"POST /solve HTTP/1.1\r\nHost: x\r\n")
+        .await
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(100)).await;
+    let t = Instant::now();
+    s.stop.take().unwrap().send(()).unwrap();
+    tokio::time::timeout(Duration::from_secs(8), s.task)
+        .await
+        .expect("the server did not return within the grace period + 5 s")
+        .unwrap()
+        .unwrap();
+    assert!(t.elapsed() < Duration::from_secs(7), "{:?}", t.elapsed());
+    drop(conn);
+}
+
+/// A client's request id is kept when it is usable in logs, and replaced by
+/// a generated one when it is empty, binary or too long.
+#[tokio::test]
+async fn unusable_request_ids_are_replaced() {
+    let s = Server::default().await;
+    let client = reqwest::Client::new();
+    let id_of = |res: &reqwest::Response| {
+        res.headers()
+            .get("x-request-id")
+            .map(|v| v.as_bytes().to_vec())
+            .unwrap_or_default()
+    };
+    let kept = client
+        .get(s.url("/healthz"))
+        .header("x-request-id", "trace-42:abc")
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(id_of(&kept), b"trace-42:abc");
+    let long = "a".repeat(129);
+    for bad in [
+        reqwest::header::HeaderValue::from_static(""),
+        reqwest::header::HeaderValue::from_bytes(b"\xff\xfe").unwrap(),
+        reqwest::header::HeaderValue::from_str(&long).unwrap(),
+        reqwest::header::HeaderValue::from_static("with space"),
+    ] {
+        let res = client
+            .get(s.url("/healthz"))
+            .header("x-request-id", bad.clone())
+            .send()
+            .await
+            .unwrap();
+        let id = id_of(&res);
+        assert_eq!(
+            id.len(),
+            36,
+            "{bad:?} -> {:?}",
+            String::from_utf8_lossy(&id)
+        );
+        assert!(id.iter().all(|c| c.is_ascii_hexdigit() || *c == b'-'));
+    }
+}
+
+/// However many values are bad, the answer lists the first 100 and counts
+/// the rest (a 4 MiB body of bad rows used to produce an 80 MB answer).
+#[tokio::test]
+async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
+    let s = Server::default().await;
+    let rows: Vec<Value> = (0..5000).map(|_| json!([1e7, 1e300])).collect();
+    let p = problem_of(
+        s.post(&json!({"horizon": 5000, "initial_controls": rows}))
+            .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    let errors = p["errors"].as_array().unwrap();
+    assert_eq!(errors.len(), 101);
+    assert_eq!(errors[0]["pointer"], "/initial_controls/0/0");
+    assert_eq!(
+        errors[0]["detail"],
+        "must be a number from -1000000 to 1000000 (N), got 10000000"
+    );
+    assert_eq!(
+        errors[1]["detail"],
+        "must be a number from -1000000 to 1000000 (N), got 1e300"
+    );
+    assert_eq!(errors[100]["pointer"], "");
+    assert_eq!(
+        errors[100]["detail"],
+        "9900 more invalid values not listed (only the first 100 are)"
+    );
+    assert_eq!(p["detail"], "101 invalid fields; see `errors`");
+}

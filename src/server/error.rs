@@ -48,6 +48,11 @@ pub enum ApiError {
     UnsupportedMediaType,
     /// The body exceeds the configured limit (413).
     PayloadTooLarge(usize),
+    /// The body did not arrive within the read timeout, in s (408).
+    RequestTimeout(u64),
+    /// The body could not be read: the connection broke, or its framing
+    /// (chunked encoding) is invalid (400).
+    UnreadableBody(String),
     /// The queue is full (503 with `Retry-After`).
     Overloaded { retry_after: u64 },
     /// The service is shutting down (503).
@@ -78,6 +83,16 @@ impl ApiError {
                 StatusCode::PAYLOAD_TOO_LARGE,
                 "payload-too-large",
                 "Request body too large",
+            ),
+            Self::RequestTimeout(_) => (
+                StatusCode::REQUEST_TIMEOUT,
+                "request-timeout",
+                "Request body too slow",
+            ),
+            Self::UnreadableBody(_) => (
+                StatusCode::BAD_REQUEST,
+                "unreadable-body",
+                "Request body unreadable",
             ),
             Self::Overloaded { .. } => (
                 StatusCode::SERVICE_UNAVAILABLE,
@@ -110,6 +125,8 @@ impl ApiError {
             Self::Validation(_) => "invalid",
             Self::UnsupportedMediaType => "unsupported_media_type",
             Self::PayloadTooLarge(_) => "too_large",
+            Self::RequestTimeout(_) => "body_timeout",
+            Self::UnreadableBody(_) => "unreadable_body",
             Self::Overloaded { .. } => "queue_full",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
@@ -143,6 +160,14 @@ impl ApiError {
                 vec![],
                 None,
             ),
+            Self::RequestTimeout(secs) => (
+                format!("the body did not arrive within {secs} s"),
+                vec![],
+                None,
+            ),
+            Self::UnreadableBody(msg) => {
+                (format!("the body could not be read: {msg}"), vec![], None)
+            }
             Self::Overloaded { retry_after } => (
                 format!("every worker is busy and the queue is full; retry in {retry_after} s"),
                 vec![],

@@ -83,6 +83,13 @@ pub struct Config {
     /// `Retry-After` sent with 503 overload answers, in seconds.
     #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1)]
     pub retry_after_secs: u64,
+    /// Seconds a client gets to send a request's headers, and again its
+    /// body. A connection that stalls longer is closed (headers) or answered
+    /// 408 (body), so slow or stuck clients cannot pile up connections or
+    /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.2 Mbit/s.
+    #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
+          value_parser = clap::value_parser!(u64).range(1..))]
+    pub read_timeout_secs: u64,
     /// gzip level of answers to clients that accept gzip: 1 (fastest) to 9
     /// (smallest), 0 to send every answer uncompressed. The seed answer
     /// takes ~0.6 ms to compress at 3 (2.1×), more than its 0.45 ms solve:
@@ -237,20 +244,100 @@ impl Drop for InFlight {
     }
 }
 
+/// After the drain, how long open connections get to finish writing their
+/// answers before the server returns anyway (closing them).
+const CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
+
 /// Serve on `listener` until `shutdown` resolves, then drain and return.
+///
+/// The accept loop is hyper-util's, as in `axum::serve`, plus what that
+/// lacks: a header read timeout (hyper's `header_read_timeout` needs a timer,
+/// which `axum::serve` does not set, so a client that never finished its
+/// headers held its connection forever) and a bound on shutdown. Shutdown:
+/// on `shutdown`, [`AppState::drain`] runs while connections are still
+/// accepted (`/readyz` and `/solve` answer 503); then the listener closes,
+/// every connection is told to finish its current exchange, and after
+/// [`CLOSE_TIMEOUT`] the rest are dropped. The longest shutdown is thus the
+/// grace period plus 5 s, whatever the clients do.
 pub async fn run(
     listener: TcpListener,
     state: Arc<AppState>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    let app = app(Arc::clone(&state));
-    let drain = async move {
-        shutdown.await;
-        state.drain().await;
+    use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
+    use hyper_util::server::conn::auto::Builder;
+    use hyper_util::service::TowerToHyperService;
+    use tower::ServiceExt;
+
+    let read_timeout = Duration::from_secs(state.config.read_timeout_secs);
+    let service =
+        app(Arc::clone(&state)).map_request(|req: axum::http::Request<hyper::body::Incoming>| {
+            req.map(axum::body::Body::new)
+        });
+    let drained = {
+        let state = Arc::clone(&state);
+        async move {
+            shutdown.await;
+            state.drain().await;
+        }
     };
-    axum::serve(listener, app)
-        .with_graceful_shutdown(drain)
-        .await
+    let mut drained = std::pin::pin!(drained);
+    // Flipped once, when the drain is over: connections finish and close.
+    let (stop_tx, stop_rx) = tokio::sync::watch::channel(false);
+    let mut connections = tokio::task::JoinSet::new();
+    loop {
+        tokio::select! {
+            () = &mut drained => break,
+            accepted = listener.accept() => {
+                let (io, _peer) = match accepted {
+                    Ok(conn) => conn,
+                    Err(e) => {
+                        // Out of file descriptors and the like: the listener
+                        // recovers once connections close. Back off briefly.
+                        tracing::warn!(error = %e, "accept failed");
+                        tokio::time::sleep(Duration::from_millis(100)).await;
+                        continue;
+                    }
+                };
+                let _ = io.set_nodelay(true);
+                let service = TowerToHyperService::new(service.clone());
+                let mut stop = stop_rx.clone();
+                connections.spawn(async move {
+                    let mut builder = Builder::new(TokioExecutor::new());
+                    builder
+                        .http1()
+                        .timer(TokioTimer::new())
+                        .header_read_timeout(read_timeout);
+                    builder.http2().timer(TokioTimer::new());
+                    let conn = builder.serve_connection_with_upgrades(TokioIo::new(io), service);
+                    let mut conn = std::pin::pin!(conn);
+                    tokio::select! {
+                        _ = conn.as_mut() => return,
+                        _ = stop.wait_for(|stop| *stop) => conn.as_mut().graceful_shutdown(),
+                    }
+                    let _ = conn.await;
+                });
+            }
+            // Reap finished connections so the set does not grow.
+            Some(_) = connections.join_next(), if !connections.is_empty() => {}
+        }
+    }
+    drop(listener);
+    let _ = stop_tx.send(true);
+    let open = connections.len();
+    let closed = tokio::time::timeout(CLOSE_TIMEOUT, async {
+        while connections.join_next().await.is_some() {}
+    })
+    .await;
+    if closed.is_err() {
+        tracing::warn!(
+            open = connections.len(),
+            of = open,
+            "connections still open after the drain; closing them"
+        );
+        connections.shutdown().await;
+    }
+    Ok(())
 }
 
 /// Resolves on SIGINT or SIGTERM.

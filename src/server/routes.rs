@@ -76,6 +76,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
         .layer(axum::middleware::from_fn(metrics::track));
     router.layer(
         ServiceBuilder::new()
+            .map_request(drop_unusable_request_id)
             .layer(SetRequestIdLayer::x_request_id(MakeRequestUuid))
             .layer(
                 TraceLayer::new_for_http()
@@ -139,7 +140,7 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     let headers = req.headers();
     let encoded = headers
         .get(header::CONTENT_ENCODING)
-        .is_some_and(|v| v.as_bytes() != b"identity");
+        .is_some_and(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"));
     if encoded || !is_json(headers) {
         return Err(ApiError::UnsupportedMediaType);
     }
@@ -153,13 +154,20 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     if declared.is_some_and(|n| n > limit as u64) {
         return Err(ApiError::PayloadTooLarge(limit));
     }
-    let bytes = Bytes::from_request(req, state).await.map_err(|rej| {
-        if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
-            ApiError::PayloadTooLarge(limit)
-        } else {
-            ApiError::MalformedJson(rej.body_text())
-        }
-    })?;
+    // Bounded in time as well as size: a client that stalls mid-body would
+    // otherwise hold its connection (and a shutdown) indefinitely.
+    let secs = state.config.read_timeout_secs;
+    let read = Bytes::from_request(req, state);
+    let bytes = tokio::time::timeout(Duration::from_secs(secs), read)
+        .await
+        .map_err(|_| ApiError::RequestTimeout(secs))?
+        .map_err(|rej| {
+            if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
+                ApiError::PayloadTooLarge(limit)
+            } else {
+                ApiError::UnreadableBody(rej.body_text())
+            }
+        })?;
     match parse(&bytes) {
         Ok(spec) => Ok(spec),
         Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
@@ -197,7 +205,8 @@ fn is_json(headers: &HeaderMap) -> bool {
     request_body(content = ProblemSpec, content_type = "application/json"),
     responses(
         (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult),
-        (status = 400, description = "The body is not JSON", body = Problem, content_type = "application/problem+json"),
+        (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, connection lost)", body = Problem, content_type = "application/problem+json"),
+        (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Content-Type is not JSON", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
@@ -261,7 +270,7 @@ async fn solve(
             })
         })?;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    let mut waiting = Waiting(ticket);
+    let mut waiting = Waiting(ticket, tracing::Span::current());
     let done = waiting.0.done().await;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     drop(guard);
@@ -356,6 +365,26 @@ fn qvalue(s: &str) -> Option<f32> {
 /// one, but only after the handler has run (a whole solve for nothing) and
 /// with the handler's body under it; a readable answer serves such a client
 /// better.
+/// Longest client-supplied `x-request-id` kept.
+const MAX_REQUEST_ID_LEN: usize = 128;
+
+/// A client's `x-request-id` is echoed and written into every log line of the
+/// request, so it must be usable there: 1 to 128 visible ASCII characters.
+/// Anything else (empty, binary, a 70 kB value) is removed, and the request
+/// gets a generated UUID instead, like a request that sent none.
+fn drop_unusable_request_id(mut req: Request) -> Request {
+    let usable = |v: &axum::http::HeaderValue| {
+        let b = v.as_bytes();
+        !b.is_empty() && b.len() <= MAX_REQUEST_ID_LEN && b.iter().all(|c| c.is_ascii_graphic())
+    };
+    let headers = req.headers_mut();
+    let all_usable = headers.get_all("x-request-id").iter().all(usable);
+    if !all_usable || headers.get_all("x-request-id").iter().count() > 1 {
+        headers.remove("x-request-id");
+    }
+    req
+}
+
 fn canonical_accept_encoding(mut req: Request, gzip_level: u32) -> Request {
     let gzip = gzip_level > 0 && admits_gzip(req.headers());
     let headers = req.headers_mut();
@@ -403,10 +432,13 @@ fn encode(json: Vec<u8>, level: Option<u32>) -> Encoded {
 /// A queued solve whose handler is waiting. If the handler is dropped first
 /// (the client disconnected) while the solve is still queued, the solve is
 /// withdrawn, its slot freed at once, and it is counted as cancelled.
-struct Waiting<T>(Ticket<T>);
+/// The span is the request's: a drop happens after the handler's future has
+/// been abandoned, outside it, and the log line must still carry the id.
+struct Waiting<T>(Ticket<T>, tracing::Span);
 
 impl<T> Drop for Waiting<T> {
     fn drop(&mut self) {
+        let _in_request = self.1.enter();
         if self.0.withdraw() {
             ::metrics::counter!("solves_total", "status" => "cancelled").increment(1);
             tracing::info!("client left while queued; solve withdrawn");
