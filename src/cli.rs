@@ -104,7 +104,14 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    print!("{}", summary(&spec, &result));
+    // With `-o -` the JSON owns standard output (to pipe into jq), so the
+    // summary goes to standard error.
+    let json_to_stdout = output.as_ref().is_some_and(|p| p.as_os_str() == "-");
+    if json_to_stdout {
+        eprint!("{}", summary(&spec, &result));
+    } else {
+        print!("{}", summary(&spec, &result));
+    }
     if let Some(path) = output {
         let json = match serde_json::to_string_pretty(&result) {
             Ok(j) => j,

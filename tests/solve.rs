@@ -106,3 +106,45 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
     assert_eq!(again.initial_cost.to_bits(), first.cost.to_bits());
     assert!(again.cost <= first.cost);
 }
+
+/// `solve -o -` puts the result JSON alone on standard output (so it pipes
+/// into jq) and the human summary on standard error; a bad problem is an
+/// error naming the field, with exit status 2.
+#[test]
+fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let run = |input: &str| {
+        let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .args(["solve", "-", "-o", "-"])
+            .stdin(Stdio::piped())
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        child
+            .stdin
+            .take()
+            .unwrap()
+            .write_all(input.as_bytes())
+            .unwrap();
+        child.wait_with_output().unwrap()
+    };
+    let ok = run(r#"{"output": {"trace": false}}"#);
+    assert!(ok.status.success());
+    let result: serde_json::Value = serde_json::from_slice(&ok.stdout).unwrap();
+    assert_eq!(result["status"], "converged");
+    let summary = String::from_utf8(ok.stderr).unwrap();
+    assert!(
+        summary.starts_with("status           converged"),
+        "{summary}"
+    );
+
+    let bad = run(r#"{"dt": 1e300}"#);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(bad.stdout.is_empty());
+    assert_eq!(
+        String::from_utf8(bad.stderr).unwrap(),
+        "error: /dt: must be a positive number of seconds, at most 10, got 1e300\n"
+    );
+}
