@@ -1,0 +1,76 @@
+"""How often the solver ends each way on random, badly scaled problems.
+
+    python3 bench/robustness.py target/release/ilqr-service 300 1
+
+Draws COUNT problems with seed SEED (dt 0.01-1 s, horizon 50/100/200,
+random start, goal and 0-4 obstacles with weights 1-1e8, state, control and
+terminal weights over several decades; in 30% of them the start sits
+within 1 mm of the first obstacle's centre), solves each with
+`BINARY solve - -o FILE`, and prints the count of each status, plus the
+solves that ended `converged` with a last regularisation above 1: a heavily
+damped step is small, so it could look converged without being so. Those
+(11 of 300 with seed 1, 7 with mu_max = 1e10) have not been checked
+against another solver.
+
+Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
+converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
+(23a4aa3) converged 259, max_iterations 39, no_progress 2.
+"""
+
+import collections
+import json
+import os
+import random
+import subprocess
+import sys
+import tempfile
+
+
+def problem(rng: random.Random) -> dict:
+    p = {
+        "dt": 10 ** rng.uniform(-2, 0),
+        "horizon": rng.choice([50, 100, 200]),
+        "initial_state": [rng.uniform(0, 9), rng.uniform(0, 9), rng.uniform(-1, 1), 0, 0, 0],
+        "goal_state": [rng.uniform(0, 9), rng.uniform(0, 9), 0, 0, 0, 0],
+        "obstacles": [
+            {"center": [rng.uniform(0, 9), rng.uniform(0, 9)], "weight": 10 ** rng.uniform(0, 8)}
+            for _ in range(rng.randint(0, 4))
+        ],
+        "weights": {
+            "state": [10 ** rng.uniform(-3, 2)] * 6,
+            "control": [10 ** rng.uniform(-3, 1)] * 2,
+            "terminal": [10 ** rng.uniform(0, 6)] * 6,
+        },
+    }
+    if rng.random() < 0.3 and p["obstacles"]:
+        c = p["obstacles"][0]["center"]
+        p["initial_state"][:2] = [c[0] + rng.uniform(-1e-3, 1e-3), c[1] + rng.uniform(-1e-3, 1e-3)]
+    return p
+
+
+def main() -> int:
+    binary, count, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    rng = random.Random(seed)
+    statuses = collections.Counter()
+    suspicious = []
+    with tempfile.TemporaryDirectory() as tmp:
+        out = os.path.join(tmp, "result.json")
+        for i in range(count):
+            run = subprocess.run([binary, "solve", "-", "-o", out], input=json.dumps(problem(rng)),
+                                 capture_output=True, text=True)
+            if run.returncode != 0:
+                statuses["error"] += 1
+                continue
+            with open(out) as f:
+                r = json.load(f)
+            statuses[r["status"]] += 1
+            mus = [row["regularization"] for row in r["trace"]]
+            if r["status"] == "converged" and mus and mus[-1] > 1:
+                suspicious.append((i, round(mus[-1], 3), r["iterations"]))
+    print(dict(statuses))
+    print("converged with a last regularisation above 1 (problem, mu, iterations):", suspicious)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
