@@ -107,10 +107,11 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
     // With `-o -` the JSON owns standard output (to pipe into jq), so the
     // summary goes to standard error.
     let json_to_stdout = output.as_ref().is_some_and(|p| p.as_os_str() == "-");
+    let text = summary(&spec, &result);
     if json_to_stdout {
-        eprint!("{}", summary(&spec, &result));
+        eprint!("{text}");
     } else {
-        print!("{}", summary(&spec, &result));
+        print!("{text}");
     }
     if let Some(path) = output {
         let json = match serde_json::to_string_pretty(&result) {

@@ -7,6 +7,7 @@ use std::time::{Duration, Instant};
 
 use ilqr_service::server::{AppState, Config, run};
 use reqwest::StatusCode;
+use reqwest::header::HeaderValue;
 use serde_json::{Value, json};
 use tokio::net::TcpListener;
 use tokio::sync::oneshot;
@@ -91,6 +92,15 @@ impl Server {
 
     async fn get(&self, path: &str) -> reqwest::Response {
         reqwest::get(self.url(path)).await.unwrap()
+    }
+
+    /// GET `path` with these headers (a name may repeat).
+    async fn get_with(&self, path: &str, headers: &[(&str, HeaderValue)]) -> reqwest::Response {
+        let mut req = reqwest::Client::new().get(self.url(path));
+        for (name, value) in headers {
+            req = req.header(*name, value.clone());
+        }
+        req.send().await.unwrap()
     }
 }
 
@@ -252,12 +262,12 @@ async fn responses_are_gzipped_when_asked() {
         assert_eq!(encoding, None, "{accept}");
         assert_eq!(v, plain, "{accept}");
     }
-    let health = client
-        .get(s.url("/healthz"))
-        .header("accept-encoding", "*;q=0")
-        .send()
-        .await
-        .unwrap();
+    let health = s
+        .get_with(
+            "/healthz",
+            &[("accept-encoding", HeaderValue::from_static("*;q=0"))],
+        )
+        .await;
     assert_eq!(health.status(), 200);
 }
 
@@ -280,12 +290,12 @@ async fn gzip_level_0_sends_everything_uncompressed() {
     assert!(solve.headers().get("content-encoding").is_none());
     let v: Value = solve.json().await.unwrap();
     assert_eq!(v["iterations"], 2);
-    let doc = client
-        .get(s.url("/openapi.json"))
-        .header("accept-encoding", "gzip")
-        .send()
-        .await
-        .unwrap();
+    let doc = s
+        .get_with(
+            "/openapi.json",
+            &[("accept-encoding", HeaderValue::from_static("gzip"))],
+        )
+        .await;
     assert_eq!(doc.status(), 200);
     assert!(doc.headers().get("content-encoding").is_none());
     let _: Value = doc.json().await.unwrap();
@@ -744,41 +754,36 @@ async fn shutdown_is_not_held_up_by_a_stalled_client() {
 #[tokio::test]
 async fn unusable_request_ids_are_replaced() {
     let s = Server::default().await;
-    let client = reqwest::Client::new();
     let id_of = |res: &reqwest::Response| {
         res.headers()
             .get("x-request-id")
             .map(|v| v.as_bytes().to_vec())
             .unwrap_or_default()
     };
-    let kept = client
-        .get(s.url("/healthz"))
-        .header("x-request-id", "trace-42:abc")
-        .send()
-        .await
-        .unwrap();
+    let id = |v: HeaderValue| ("x-request-id", v);
+    let kept = s
+        .get_with("/healthz", &[id(HeaderValue::from_static("trace-42:abc"))])
+        .await;
     assert_eq!(id_of(&kept), b"trace-42:abc");
-    let long = "a".repeat(129);
+    let long = HeaderValue::from_str(&"a".repeat(129)).unwrap();
     for bad in [
-        reqwest::header::HeaderValue::from_static(""),
-        reqwest::header::HeaderValue::from_bytes(b"\xff\xfe").unwrap(),
-        reqwest::header::HeaderValue::from_str(&long).unwrap(),
-        reqwest::header::HeaderValue::from_static("with space"),
+        vec![id(HeaderValue::from_static(""))],
+        vec![id(HeaderValue::from_bytes(b"\xff\xfe").unwrap())],
+        vec![id(long)],
+        vec![id(HeaderValue::from_static("with space"))],
+        vec![
+            id(HeaderValue::from_static("a")),
+            id(HeaderValue::from_static("b")),
+        ],
     ] {
-        let res = client
-            .get(s.url("/healthz"))
-            .header("x-request-id", bad.clone())
-            .send()
-            .await
-            .unwrap();
-        let id = id_of(&res);
+        let got = id_of(&s.get_with("/healthz", &bad).await);
         assert_eq!(
-            id.len(),
+            got.len(),
             36,
             "{bad:?} -> {:?}",
-            String::from_utf8_lossy(&id)
+            String::from_utf8_lossy(&got)
         );
-        assert!(id.iter().all(|c| c.is_ascii_hexdigit() || *c == b'-'));
+        assert!(got.iter().all(|c| c.is_ascii_hexdigit() || *c == b'-'));
     }
 }
 

@@ -86,7 +86,7 @@ pub struct Config {
     /// Seconds a client gets to send a request's headers, and again its
     /// body. A connection that stalls longer is closed (headers) or answered
     /// 408 (body), so slow or stuck clients cannot pile up connections or
-    /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.2 Mbit/s.
+    /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.12 Mbit/s.
     #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
           value_parser = clap::value_parser!(u64).range(1..))]
     pub read_timeout_secs: u64,

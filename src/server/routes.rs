@@ -356,15 +356,6 @@ fn qvalue(s: &str) -> Option<f32> {
     if valid { s.parse().ok() } else { None }
 }
 
-/// Rewrites `Accept-Encoding` to what this service will do: `gzip` if the
-/// request admits it and `gzip_level` is not 0, otherwise no header
-/// (identity). The `/solve` handler
-/// and tower-http's compression layer then decide from the same value, and
-/// a request that admits neither gzip nor identity (`*;q=0`) is answered in
-/// identity. RFC 9110 allows a 406 instead, and tower-http's layer sends
-/// one, but only after the handler has run (a whole solve for nothing) and
-/// with the handler's body under it; a readable answer serves such a client
-/// better.
 /// Longest client-supplied `x-request-id` kept.
 const MAX_REQUEST_ID_LEN: usize = 128;
 
@@ -377,14 +368,29 @@ fn drop_unusable_request_id(mut req: Request) -> Request {
         let b = v.as_bytes();
         !b.is_empty() && b.len() <= MAX_REQUEST_ID_LEN && b.iter().all(|c| c.is_ascii_graphic())
     };
-    let headers = req.headers_mut();
-    let all_usable = headers.get_all("x-request-id").iter().all(usable);
-    if !all_usable || headers.get_all("x-request-id").iter().count() > 1 {
-        headers.remove("x-request-id");
+    // Exactly one usable value is kept; none, a bad one or several give way
+    // to a generated id.
+    let mut ids = req.headers().get_all("x-request-id").iter();
+    let keep = match (ids.next(), ids.next()) {
+        (Some(id), None) => usable(id),
+        (None, _) => true,
+        (Some(_), Some(_)) => false,
+    };
+    if !keep {
+        req.headers_mut().remove("x-request-id");
     }
     req
 }
 
+/// Rewrites `Accept-Encoding` to what this service will do: `gzip` if the
+/// request admits it and `gzip_level` is not 0, otherwise no header
+/// (identity). The `/solve` handler
+/// and tower-http's compression layer then decide from the same value, and
+/// a request that admits neither gzip nor identity (`*;q=0`) is answered in
+/// identity. RFC 9110 allows a 406 instead, and tower-http's layer sends
+/// one, but only after the handler has run (a whole solve for nothing) and
+/// with the handler's body under it; a readable answer serves such a client
+/// better.
 fn canonical_accept_encoding(mut req: Request, gzip_level: u32) -> Request {
     let gzip = gzip_level > 0 && admits_gzip(req.headers());
     let headers = req.headers_mut();

@@ -81,9 +81,10 @@ pub struct Options {
     /// of order −1e11 or lower. With 1e10, a start within 1 mm of an
     /// obstacle centre, the seed at `N = 1000` or `2000`, or `dt = 1` ended
     /// with `NoProgress` at iteration 0 or 4; with 1e20 they converge, and on
-    /// 300 random problems `NoProgress` fell from 44 to 2. A solve that
-    /// cannot progress reaches 1e20 after ~4 more failed backward passes
-    /// than it needed to reach 1e10.
+    /// 300 random problems `NoProgress` fell from 44 to 2
+    /// (`bench/robustness.py`). A solve that cannot progress now gives up
+    /// later: from μ = 1, the schedule passes 1e10 after 10 consecutive
+    /// increases and 1e20 after 14.
     pub mu_max: f64,
     /// Base factor of the μ schedule (Tassa's Δ₀).
     pub mu_factor: f64,

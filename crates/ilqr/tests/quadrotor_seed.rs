@@ -7,17 +7,22 @@ mod common;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
 
-use common::{OBSTACLE, SEED_OPTIMUM, goal, hover, seed_problem};
+use common::{OBSTACLE, SEED_OPTIMUM, Seed, goal, hover, seed_problem};
 use ilqr::{Cost, DiscreteDynamics, Options, Solver, Status, Summary};
 use nalgebra::{SVector, Vector2};
 
-fn solve_with(options: &Options) -> (Solver<6, 2>, Summary) {
-    let problem = seed_problem(100, 0.05);
-    let mut solver = Solver::new(100);
+/// Solve `problem` from hover with `options`.
+fn solve_problem(problem: &Seed, options: &Options) -> (Solver<6, 2>, Summary) {
+    let n = problem.horizon;
+    let mut solver = Solver::new(n);
     let summary = solver
-        .solve(&problem, &hover(100), options, &AtomicBool::new(false))
-        .expect("the seed problem is valid");
+        .solve(problem, &hover(n), options, &AtomicBool::new(false))
+        .expect("the problem is valid");
     (solver, summary)
+}
+
+fn solve_with(options: &Options) -> (Solver<6, 2>, Summary) {
+    solve_problem(&seed_problem(100, 0.05), options)
 }
 
 fn solve_seed() -> (Solver<6, 2>, Summary) {
@@ -230,15 +235,7 @@ fn starts_on_and_near_the_obstacle_centre_stay_finite_and_escape() {
     for offset in [0.0, 1e-4, 0.05, 0.5] {
         let mut problem = seed_problem(100, 0.05);
         problem.x0 = SVector::from([4.5 + offset, 4.5, 0.0, 0.0, 0.0, 0.0]);
-        let mut solver = Solver::new(100);
-        let s = solver
-            .solve(
-                &problem,
-                &hover(100),
-                &Options::default(),
-                &AtomicBool::new(false),
-            )
-            .unwrap();
+        let (solver, s) = solve_problem(&problem, &Options::default());
         assert!(s.cost.is_finite(), "offset {offset}: {s:?}");
         assert!(
             solver
@@ -263,16 +260,7 @@ fn starts_on_and_near_the_obstacle_centre_stay_finite_and_escape() {
 /// It used to stop with `NoProgress` after 4 iterations at cost 1.49e6.
 #[test]
 fn the_seed_over_a_long_horizon_converges() {
-    let problem = seed_problem(1000, 0.05);
-    let mut solver = Solver::new(1000);
-    let s = solver
-        .solve(
-            &problem,
-            &hover(1000),
-            &Options::default(),
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+    let (solver, s) = solve_problem(&seed_problem(1000, 0.05), &Options::default());
     assert_eq!(s.status, Status::Converged, "{s:?}");
     assert!(s.cost < 15_000.0, "{s:?}");
     let end = solver.states()[1000];
