@@ -817,3 +817,39 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
     );
     assert_eq!(p["detail"], "101 invalid fields; see `errors`");
 }
+
+/// `Content-Encoding: IDENTITY` is identity (codings are case-insensitive),
+/// and a body whose chunked framing is broken is "unreadable", not "not
+/// JSON".
+#[tokio::test]
+async fn body_framing_and_coding_edge_cases() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = Server::default().await;
+    let res = reqwest::Client::new()
+        .post(s.url("/solve"))
+        .header("content-type", "application/json")
+        .header("content-encoding", "IDENTITY")
+        .body(r#"{"solver": {"max_iterations": 1}}"#)
+        .send()
+        .await
+        .unwrap();
+    assert_eq!(res.status(), 200);
+
+    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    conn.write_all(
+        b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n{}\r\n0\r\n\r\n",
+    )
+    .await
+    .unwrap();
+    let mut answer = Vec::new();
+    tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer))
+        .await
+        .expect("no answer within 5 s")
+        .unwrap();
+    let answer = String::from_utf8_lossy(&answer);
+    assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
+    assert!(
+        answer.contains("urn:ilqr-service:unreadable-body"),
+        "{answer}"
+    );
+}
