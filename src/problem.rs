@@ -15,6 +15,7 @@
 use std::fmt;
 use std::time::Duration;
 
+use serde::de::Visitor;
 use serde::{Deserialize, Deserializer, Serialize};
 use utoipa::ToSchema;
 
@@ -57,6 +58,7 @@ pub struct ProblemSpec {
     /// The dynamics model and its physical parameters.
     pub model: ModelSpec,
     /// How the continuous dynamics are discretised.
+    #[serde(deserialize_with = "de_name")]
     pub integrator: Integrator,
     /// Time step in seconds, at most 10. Default 0.05.
     #[schema(default = 0.05, exclusive_minimum = 0.0, maximum = 10.0)]
@@ -95,7 +97,7 @@ pub struct ProblemSpec {
 #[serde(default, deny_unknown_fields)]
 pub struct ModelSpec {
     /// Model kind.
-    #[serde(rename = "type")]
+    #[serde(rename = "type", deserialize_with = "de_name")]
     pub kind: ModelKind,
     /// Mass m in kg, from 1e-6 to 1e6. Default 1.
     #[schema(default = 1.0, minimum = 1e-6, maximum = 1e6)]
@@ -481,32 +483,80 @@ impl Checker {
 
 /// Accept a count written as an integer or as an integral float (`100.0`):
 /// JSON Schema calls both integers, and clients that build JSON from floats
-/// should not get a type error for it.
+/// should not get a type error for it. Anything else is an error that says
+/// an integer was expected (`"x"`, `-3`, `2.5`).
 fn de_count<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
-    let n = serde_json::Number::deserialize(d)?;
-    number_to_count(&n)
-        .and_then(|c| usize::try_from(c).ok())
-        .ok_or_else(|| {
-            serde::de::Error::custom(format!("expected a non-negative integer, got {n}"))
-        })
+    let n = d.deserialize_any(Count)?;
+    usize::try_from(n)
+        .map_err(|_| serde::de::Error::invalid_value(serde::de::Unexpected::Unsigned(n), &Count))
 }
 
 fn de_opt_count<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
-    match Option::<serde_json::Number>::deserialize(d)? {
-        None => Ok(None),
-        Some(n) => number_to_count(&n).map(Some).ok_or_else(|| {
-            serde::de::Error::custom(format!("expected a non-negative integer or null, got {n}"))
-        }),
+    d.deserialize_option(OptCount)
+}
+
+/// A non-negative integer, written as `7` or `7.0`.
+struct Count;
+
+impl<'de> Visitor<'de> for Count {
+    type Value = u64;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a non-negative integer")
+    }
+
+    fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<u64, E> {
+        Ok(v)
+    }
+
+    fn visit_i64<E: serde::de::Error>(self, v: i64) -> Result<u64, E> {
+        u64::try_from(v).map_err(|_| E::invalid_value(serde::de::Unexpected::Signed(v), &self))
+    }
+
+    fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<u64, E> {
+        // 2^53: beyond it f64 no longer holds every integer.
+        if v >= 0.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0 {
+            Ok(v as u64)
+        } else {
+            Err(E::invalid_value(serde::de::Unexpected::Float(v), &self))
+        }
     }
 }
 
-fn number_to_count(n: &serde_json::Number) -> Option<u64> {
-    if let Some(u) = n.as_u64() {
-        return Some(u);
+/// [`Count`] or `null`.
+struct OptCount;
+
+impl<'de> Visitor<'de> for OptCount {
+    type Value = Option<u64>;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a non-negative integer or null")
     }
-    let f = n.as_f64()?;
-    // 2^53: beyond it f64 no longer holds every integer.
-    (f >= 0.0 && f.fract() == 0.0 && f <= 9_007_199_254_740_992.0).then_some(f as u64)
+
+    fn visit_none<E: serde::de::Error>(self) -> Result<Self::Value, E> {
+        Ok(None)
+    }
+
+    fn visit_unit<E: serde::de::Error>(self) -> Result<Self::Value, E> {
+        Ok(None)
+    }
+
+    fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
+        d.deserialize_any(Count).map(Some)
+    }
+}
+
+/// A name from a fixed set (`"euler"`, `"quadrotor_2d"`) must be a JSON
+/// string. serde on its own also takes `{"euler": null}` for a unit variant,
+/// which the schema does not allow.
+fn de_name<'de, D, T>(d: D) -> Result<T, D::Error>
+where
+    D: Deserializer<'de>,
+    T: serde::de::DeserializeOwned,
+{
+    use serde::de::IntoDeserializer;
+    let name = String::deserialize(d)?;
+    T::deserialize(name.as_str().into_deserializer())
 }
 
 /// Why a request body is not a problem document.
@@ -536,11 +586,24 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         }));
     }
     serde_path_to_error::deserialize::<_, ProblemSpec>(value).map_err(|e| {
-        ParseError::Shape(FieldError {
-            pointer: pointer_of(e.path()),
-            detail: e.into_inner().to_string(),
-        })
+        let mut pointer = pointer_of(e.path());
+        let mut detail = e.into_inner().to_string();
+        // serde places a missing field at its parent object; point at the
+        // field itself, which is what the caller has to add.
+        if let Some(field) = detail
+            .strip_prefix("missing field `")
+            .and_then(|rest| rest.strip_suffix('`'))
+        {
+            pointer = format!("{pointer}/{}", escape_token(field));
+            detail = "this field is required".into();
+        }
+        ParseError::Shape(FieldError { pointer, detail })
     })
+}
+
+/// RFC 6901 escaping of one reference token.
+fn escape_token(token: &str) -> String {
+    token.replace('~', "~0").replace('/', "~1")
 }
 
 /// RFC 6901 pointer of a serde path (`weights.state[2]` → `/weights/state/2`).
@@ -552,7 +615,7 @@ fn pointer_of(path: &serde_path_to_error::Path) -> String {
         match seg {
             Segment::Seq { index } => out.push_str(&index.to_string()),
             Segment::Map { key } | Segment::Enum { variant: key } => {
-                out.push_str(&key.replace('~', "~0").replace('/', "~1"))
+                out.push_str(&escape_token(key))
             }
             Segment::Unknown => out.push('?'),
         }

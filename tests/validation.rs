@@ -134,7 +134,10 @@ fn wrong_types_and_unknown_fields_are_rejected() {
     rejects(json!({"model": {"mas": 1}}), "/model/mas");
     rejects(json!({"model": {"type": "quadrotor_3d"}}), "/model/type");
     rejects(json!({"integrator": "rk4"}), "/integrator");
-    rejects(json!({"obstacles": [{"center": [1, 1]}]}), "/obstacles/0");
+    rejects(
+        json!({"obstacles": [{"center": [1, 1]}]}),
+        "/obstacles/0/weight",
+    );
     rejects(
         json!({"solver": {"tolerance": "small"}}),
         "/solver/tolerance",
@@ -150,6 +153,59 @@ fn wrong_types_and_unknown_fields_are_rejected() {
     );
     rejects(json!({"output": {"gains": "yes"}}), "/output/gains");
     rejects(json!([]), "");
+}
+
+/// The one shape error of `doc`, as `(pointer, detail)`.
+fn shape_error(doc: Value) -> (String, String) {
+    match parse(doc.to_string().as_bytes()) {
+        Err(ParseError::Shape(f)) => (f.pointer, f.detail),
+        other => panic!("{doc}: expected a shape error, got {other:?}"),
+    }
+}
+
+#[test]
+fn shape_errors_say_what_was_expected_at_the_field_itself() {
+    // Counts: an integer, not "a JSON number".
+    for (doc, got) in [
+        (json!({"horizon": "x"}), "string \"x\""),
+        (json!({"horizon": -3}), "integer `-3`"),
+        (json!({"horizon": 2.5}), "floating point `2.5`"),
+        (
+            json!({"solver": {"max_iterations": true}}),
+            "boolean `true`",
+        ),
+        (json!({"solver": {"time_limit_ms": "5"}}), "string \"5\""),
+    ] {
+        let (_, detail) = shape_error(doc.clone());
+        assert!(detail.contains(got), "{doc}: {detail}");
+        assert!(
+            detail.contains("expected a non-negative integer"),
+            "{doc}: {detail}"
+        );
+    }
+    assert!(errors(&json!({"horizon": 3.0, "solver": {"time_limit_ms": null}})).is_empty());
+    // Names are strings only: serde alone also took `{"euler": null}`.
+    for doc in [
+        json!({"integrator": {"euler": null}}),
+        json!({"integrator": ["euler"]}),
+        json!({"model": {"type": {"quadrotor_2d": null}}}),
+    ] {
+        let (pointer, detail) = shape_error(doc.clone());
+        assert!(
+            ["/integrator", "/model/type"].contains(&pointer.as_str()),
+            "{doc}: {pointer}"
+        );
+        assert!(detail.ends_with("expected a string"), "{doc}: {detail}");
+    }
+    assert!(errors(&json!({"integrator": "euler", "model": {"type": "quadrotor_2d"}})).is_empty());
+    // A missing field is pointed at, not its parent object.
+    assert_eq!(
+        shape_error(json!({"obstacles": [{"weight": 1}, {"center": [0, 0]}]})),
+        (
+            "/obstacles/0/center".into(),
+            "this field is required".into()
+        )
+    );
 }
 
 #[test]
