@@ -78,6 +78,10 @@ fn local_addr() -> String {
 }
 
 fn serve(config: Config) -> ExitCode {
+    if let Err(e) = config.check() {
+        eprintln!("error: {e}");
+        return ExitCode::from(2);
+    }
     match server::serve_forever(config) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {

@@ -178,8 +178,9 @@ pub struct SolverSpec {
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
     /// of it; it is checked every iteration and between line-search
-    /// rollouts, so the answer can come up to one iteration late. Unset: the
-    /// service's default (the CLI has none).
+    /// rollouts, so the answer can come up to one iteration late. At most
+    /// the service's maximum (60000 unless configured). Unset: the service's
+    /// default (10000 unless configured; the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,

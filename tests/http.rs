@@ -113,7 +113,7 @@ fn body_limit(bytes: usize) -> Config {
 
 fn small(workers: usize, queue: usize) -> Config {
     Config {
-        workers: Some(workers),
+        workers: std::num::NonZeroUsize::new(workers),
         queue_capacity: queue,
         ..Config::default()
     }

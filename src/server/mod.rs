@@ -50,9 +50,9 @@ pub struct Config {
     /// Address to listen on.
     #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080")]
     pub bind: SocketAddr,
-    /// Solver threads (default: the available cores).
+    /// Solver threads, at least 1 (default: the available cores).
     #[arg(long, env = "ILQR_WORKERS")]
-    pub workers: Option<usize>,
+    pub workers: Option<std::num::NonZeroUsize>,
     /// Async runtime threads, which accept connections, parse and validate
     /// requests and write answers; solves never run on them (default: cores
     /// / 8 rounded up, so 1 up to 8 cores). A request costs them tens of
@@ -64,14 +64,19 @@ pub struct Config {
     /// Solves that may wait for a worker before new ones get 503.
     #[arg(long, env = "ILQR_QUEUE_CAPACITY", default_value_t = 16)]
     pub queue_capacity: usize,
-    /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms.
-    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000)]
+    /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms; at
+    /// most `--max-time-limit-ms`.
+    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000,
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub default_time_limit_ms: u64,
     /// Largest `solver.time_limit_ms` a request may ask for, in ms.
-    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000)]
+    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000,
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub max_time_limit_ms: u64,
-    /// Largest accepted horizon.
-    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON)]
+    /// Largest accepted horizon, from 1 to 10000 (the solver's own ceiling:
+    /// the state bounds that keep every rollout finite assume it).
+    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON,
+          value_parser = max_horizon)]
     pub max_horizon: usize,
     /// Largest accepted request body, in bytes.
     #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
@@ -130,13 +135,35 @@ impl Config {
         }
     }
 
+    /// Checks that span several settings (each flag's own range is checked
+    /// as it is parsed).
+    pub fn check(&self) -> Result<(), String> {
+        if self.default_time_limit_ms > self.max_time_limit_ms {
+            return Err(format!(
+                "--default-time-limit-ms ({}) must not exceed --max-time-limit-ms ({})",
+                self.default_time_limit_ms, self.max_time_limit_ms
+            ));
+        }
+        Ok(())
+    }
+
     fn workers(&self) -> usize {
-        self.workers.unwrap_or_else(cores)
+        self.workers.map_or_else(cores, std::num::NonZeroUsize::get)
     }
 
     fn runtime_threads(&self) -> usize {
         self.runtime_threads
             .map_or_else(|| cores().div_ceil(8), std::num::NonZeroUsize::get)
+    }
+}
+
+/// `--max-horizon`: an integer from 1 to [`DEFAULT_MAX_HORIZON`].
+fn max_horizon(s: &str) -> Result<usize, String> {
+    match s.parse::<usize>() {
+        Ok(n) if (1..=DEFAULT_MAX_HORIZON).contains(&n) => Ok(n),
+        _ => Err(format!(
+            "expected an integer from 1 to {DEFAULT_MAX_HORIZON}"
+        )),
     }
 }
 
