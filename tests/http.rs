@@ -609,6 +609,9 @@ async fn docs_and_spec_are_served() {
     let docs = reqwest::get(s.url("/docs/")).await.unwrap();
     assert_eq!(docs.status(), 200);
     assert!(docs.text().await.unwrap().contains("swagger"));
+    // Swagger UI's own files are served, and an unknown one is our 404.
+    assert_eq!(s.get("/docs/swagger-ui.css").await.status(), 200);
+    problem_of(s.get("/docs/nope.js").await, StatusCode::NOT_FOUND).await;
     assert_eq!(s.get("/healthz").await.status(), 200);
     assert_eq!(s.get("/readyz").await.status(), 200);
 }
@@ -852,4 +855,37 @@ async fn body_framing_and_coding_edge_cases() {
         answer.contains("urn:ilqr-service:unreadable-body"),
         "{answer}"
     );
+}
+
+/// What the HTTP layer answers itself, before any route runs, is what the
+/// spec says: an empty 400 for broken framing and an empty 431 for too many
+/// header fields, each followed by a closed connection (so a client never
+/// waits on a half-read request).
+#[tokio::test]
+async fn requests_the_http_layer_rejects_get_the_documented_status() {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let s = Server::default().await;
+    let many: String = (0..120).map(|i| format!("x-h{i}: 1\r\n")).collect();
+    for (request, status) in [
+        (
+            "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: abc\r\n\r\n{}".to_owned(),
+            "400",
+        ),
+        (format!("GET /healthz HTTP/1.1\r\nHost: x\r\n{many}\r\n"), "431"),
+    ] {
+        let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        conn.write_all(request.as_bytes()).await.unwrap();
+        let mut answer = Vec::new();
+        tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer))
+            .await
+            .expect("the connection was not closed within 5 s")
+            .unwrap();
+        let answer = String::from_utf8_lossy(&answer);
+        assert!(answer.starts_with(&format!("HTTP/1.1 {status}")), "{answer}");
+        assert!(answer.contains("content-length: 0"), "{answer}");
+    }
+    let spec: Value = s.get("/openapi.json").await.json().await.unwrap();
+    assert!(spec["paths"]["/solve"]["post"]["responses"]["431"].is_object());
+    let info = spec["info"]["description"].as_str().unwrap();
+    assert!(info.contains("header fields is 431"), "{info}");
 }

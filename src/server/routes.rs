@@ -33,7 +33,11 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
         description = "Trajectory optimisation with iLQR for a planar quadrotor. POST a problem \
                        (every field optional: `{}` is the seed scenario) and get back the optimal \
                        trajectory, the time-varying feedback gains and the iteration trace. \
-                       Errors are RFC 9457 problem documents."
+                       Errors are RFC 9457 problem documents (`application/problem+json`), \
+                       on every route: an unknown path is 404 and a wrong method 405. \
+                       Only requests the HTTP layer itself cannot parse get an empty body \
+                       and a closed connection: broken framing (a malformed request line or \
+                       `Content-Length`) is 400, more than 100 header fields is 431."
     ),
     tags(
         (name = "solve", description = "Trajectory solves"),
@@ -69,7 +73,10 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
     let gzip_level = state.config.gzip_level;
     let (router, spec) = api_router().with_state(state).split_for_parts();
     let router = router
-        .merge(SwaggerUi::new("/docs").url("/openapi.json", spec))
+        .merge(
+            axum::Router::from(SwaggerUi::new("/docs").url("/openapi.json", spec))
+                .layer(axum::middleware::map_response(docs_not_found)),
+        )
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
         .layer(DefaultBodyLimit::max(body_limit))
@@ -207,9 +214,11 @@ fn is_json(headers: &HeaderMap) -> bool {
         (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult),
         (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, connection lost)", body = Problem, content_type = "application/problem+json"),
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
+        (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Content-Type is not JSON", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
+        (status = 431, description = "More than 100 header fields: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
         (status = 503, description = "Queue full (with Retry-After) or shutting down", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
@@ -529,6 +538,16 @@ async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
 
 async fn not_found() -> ApiError {
     ApiError::NotFound
+}
+
+/// Swagger UI's `/docs/{*rest}` route answers an unknown file with an empty
+/// 404 of its own, before the router's fallback can; make it ours.
+async fn docs_not_found(res: Response) -> Response {
+    if res.status() == StatusCode::NOT_FOUND {
+        ApiError::NotFound.into_response()
+    } else {
+        res
+    }
 }
 
 async fn method_not_allowed() -> ApiError {
