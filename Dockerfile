@@ -76,9 +76,11 @@ EXPOSE 8080
 USER 65532:65532
 
 # There is no shell or curl in distroless, so the health check is the binary
-# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1:8080
-# (the port in ILQR_BIND above) and exits 0/1. If you move the service to
-# another port, point the check there too (`ilqr-service healthcheck --help`).
+# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1 at the
+# port of ILQR_BIND (8080 above) and exits 0/1. So `docker run -e
+# ILQR_BIND=0.0.0.0:9000` moves the check with the service; a `--bind` flag
+# in the command does not (set ILQR_HEALTHCHECK_ADDR too, see
+# `ilqr-service healthcheck --help`).
 # Exec form, because shell form would need /bin/sh. Kubernetes ignores
 # HEALTHCHECK and uses the probes in deploy/k8s/deployment.yaml; this one is
 # for docker / compose.

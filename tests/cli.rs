@@ -1,5 +1,6 @@
-//! The `serve` command refuses settings it cannot honour before it binds,
-//! with exit status 2 and a message naming the setting.
+//! The command line around the server: `serve` refuses settings it cannot
+//! honour before it binds (exit status 2, the setting named), and
+//! `healthcheck` answers for the service it is pointed at.
 
 use std::process::Command;
 
@@ -45,4 +46,69 @@ fn settings_out_of_range_are_rejected_before_serving() {
         assert_eq!(code, Some(2), "{args:?}: {stderr}");
         assert!(stderr.contains(says), "{args:?}: {stderr}");
     }
+}
+
+/// Kills the server child when the test ends, whether it passes or not.
+struct Child(std::process::Child);
+
+impl Drop for Child {
+    fn drop(&mut self) {
+        let _ = self.0.kill();
+        let _ = self.0.wait();
+    }
+}
+
+fn free_port() -> u16 {
+    std::net::TcpListener::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port()
+}
+
+/// `healthcheck` (the container's HEALTHCHECK, which has no curl) follows
+/// the port of `ILQR_BIND`, so moving the service moves the check; it fails
+/// with exit status 1 and a reason when nothing answers.
+#[test]
+fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
+    let bind = format!("127.0.0.1:{}", free_port());
+    let _server = Child(
+        Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .arg("serve")
+            .env("ILQR_BIND", &bind)
+            .env("ILQR_WORKERS", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let check = |env: &[(&str, &str)]| {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+        cmd.arg("healthcheck")
+            .env_remove("ILQR_BIND")
+            .env_remove("ILQR_HEALTHCHECK_ADDR");
+        for (k, v) in env {
+            cmd.env(k, v);
+        }
+        let out = cmd.output().unwrap();
+        (out.status.code(), String::from_utf8(out.stderr).unwrap())
+    };
+    let started = std::time::Instant::now();
+    while check(&[("ILQR_BIND", &bind)]).0 != Some(0) {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(10),
+            "the service on {bind} never became healthy"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    // The bind address is 0.0.0.0-style in a container; only its port counts.
+    let port = bind.rsplit(':').next().unwrap();
+    let any = format!("0.0.0.0:{port}");
+    assert_eq!(check(&[("ILQR_BIND", &any)]).0, Some(0));
+    assert_eq!(check(&[("ILQR_HEALTHCHECK_ADDR", &bind)]).0, Some(0));
+
+    let nobody = format!("127.0.0.1:{}", free_port());
+    let (code, stderr) = check(&[("ILQR_HEALTHCHECK_ADDR", &nobody)]);
+    assert_eq!(code, Some(1));
+    assert!(stderr.starts_with("unhealthy: "), "{stderr}");
 }
