@@ -9,7 +9,7 @@
 use utoipa::openapi::schema::{ArrayBuilder, ArrayItems, ObjectBuilder, Schema, SchemaType, Type};
 use utoipa::openapi::{KnownFormat, SchemaFormat};
 
-use crate::problem::{MAX_CONTROL, MAX_STATE, MAX_WEIGHT};
+use crate::problem::{MAX_CONTROL, MAX_STATE, MAX_WEIGHT, ProblemSpec, Weights};
 
 fn number() -> ObjectBuilder {
     ObjectBuilder::new()
@@ -29,10 +29,12 @@ fn number_in(lo: f64, hi: f64) -> ObjectBuilder {
     number().minimum(Some(lo)).maximum(Some(hi))
 }
 
-/// A fixed-length vector of numbers from `lo` to `hi`.
-fn vector(len: usize, lo: f64, hi: f64, description: &str) -> Schema {
+/// A fixed-length vector of numbers from `lo` to `hi`, with its default
+/// taken from [`ProblemSpec::default`] so the spec cannot drift from it.
+fn vector(len: usize, lo: f64, hi: f64, default: &[f64], description: &str) -> Schema {
     fixed(len, number_in(lo, hi))
         .description(Some(description))
+        .default(Some(serde_json::json!(default)))
         .build()
         .into()
 }
@@ -43,6 +45,7 @@ pub fn initial_state() -> Schema {
         6,
         -MAX_STATE,
         MAX_STATE,
+        &ProblemSpec::default().initial_state,
         "Initial state [x, y, θ, ẋ, ẏ, θ̇] in m, m, rad, m/s, m/s, rad/s, each of magnitude \
          at most 1e6. Default [5, 0, 0, 0, 0, 0].",
     )
@@ -54,6 +57,7 @@ pub fn goal_state() -> Schema {
         6,
         -MAX_STATE,
         MAX_STATE,
+        &ProblemSpec::default().goal_state,
         "Target state, same units and bounds as initial_state. Default [4, 9, 0, 0, 0, 0]: \
          the initial state reflected through the default obstacle.",
     )
@@ -65,6 +69,7 @@ pub fn state_weights() -> Schema {
         6,
         0.0,
         MAX_WEIGHT,
+        &Weights::default().state,
         "Diagonal of Q, the stage state weight (0 to 1e12). Default all 1.",
     )
 }
@@ -75,6 +80,7 @@ pub fn control_weights() -> Schema {
         2,
         0.0,
         MAX_WEIGHT,
+        &Weights::default().control,
         "Diagonal of R, the control weight (0 to 1e12). Default [0.1, 0.1].",
     )
 }
@@ -85,18 +91,18 @@ pub fn terminal_weights() -> Schema {
         6,
         0.0,
         MAX_WEIGHT,
+        &Weights::default().terminal,
         "Diagonal of Q_f, the terminal state weight (0 to 1e12). Default all 50000.",
     )
 }
 
 /// `obstacles[].center`.
 pub fn obstacle_center() -> Schema {
-    vector(
-        2,
-        -MAX_STATE,
-        MAX_STATE,
-        "Centre [x, y] in m, each of magnitude at most 1e6.",
-    )
+    // Required, so no default.
+    fixed(2, number_in(-MAX_STATE, MAX_STATE))
+        .description(Some("Centre [x, y] in m, each of magnitude at most 1e6."))
+        .build()
+        .into()
 }
 
 /// `initial_controls`: rows of `[u1, u2]`, or null for the default.

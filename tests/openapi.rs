@@ -20,7 +20,9 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
     let spec: serde_json::Value =
         serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
     let responses = &spec["paths"]["/solve"]["post"]["responses"];
-    for status in ["200", "400", "413", "415", "422", "500", "503"] {
+    for status in [
+        "200", "400", "405", "408", "413", "415", "422", "431", "500", "503",
+    ] {
         assert!(
             responses[status].is_object(),
             "/solve does not document {status}"
@@ -81,4 +83,49 @@ fn the_spec_states_the_validated_ranges() {
     let obstacle = &schemas["Obstacle"]["properties"];
     assert_eq!(num(&obstacle["weight"]["maximum"]), MAX_WEIGHT);
     assert_eq!(num(&obstacle["center"]["items"]["maximum"]), MAX_STATE);
+}
+
+/// Every `default` the spec states is the value an omitted field takes (the
+/// serialised `ProblemSpec::default()`), and every field of the problem
+/// that has a default states it.
+#[test]
+fn the_spec_states_the_defaults_the_code_applies() {
+    let spec: serde_json::Value =
+        serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
+    let schemas = &spec["components"]["schemas"];
+    let defaults = serde_json::to_value(ilqr_service::problem::ProblemSpec::default()).unwrap();
+    let mut checked = 0;
+    for (schema, value) in [
+        ("ProblemSpec", &defaults),
+        ("ModelSpec", &defaults["model"]),
+        ("Weights", &defaults["weights"]),
+        ("SolverSpec", &defaults["solver"]),
+        ("OutputSpec", &defaults["output"]),
+    ] {
+        let properties = schemas[schema]["properties"].as_object().unwrap();
+        for (name, property) in properties {
+            // Nested objects and the optional initial guess have no single
+            // default value; their parts do.
+            if [
+                "model",
+                "weights",
+                "solver",
+                "output",
+                "initial_controls",
+                "type",
+                "integrator",
+            ]
+            .contains(&name.as_str())
+            {
+                continue;
+            }
+            assert_eq!(
+                property.get("default"),
+                Some(&value[name]),
+                "{schema}.{name}: the spec's default is not the code's"
+            );
+            checked += 1;
+        }
+    }
+    assert_eq!(checked, 17);
 }
