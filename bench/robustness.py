@@ -8,9 +8,20 @@ terminal weights over several decades; in 30% of them the start sits
 within 1 mm of the first obstacle's centre), solves each with
 `BINARY solve - -o FILE`, and prints the count of each status, plus the
 solves that ended `converged` with a last regularisation above 1: a heavily
-damped step is small, so it could look converged without being so. Those
-(11 of 300 with seed 1, 7 with mu_max = 1e10) have not been checked
-against another solver.
+damped step is small, so it could look converged without being so.
+
+Those 11 (seed 1; 7 with mu_max = 1e10) were checked on 2026-11-23: iLQR
+restarted from its own answer, IPOPT (bench/casadi_ipopt.py's NLP, tol
+1e-10) started from it, and a monotone L-BFGS descent from it. In 9 the
+cost any of them found was lower by 1e-16 to 1.6e-7 relative, the range of
+ordinary converged solves (up to 2.4e-8 on a sample of 10): genuine local
+optima. Problem 127 (dt 0.07, N 50, three obstacles, gradient norm 9e3)
+is a false convergence: restarts and descent gain 1.3e-6 to 4.5e-6 and
+keep gaining slowly. Problem 219 is borderline (IPOPT 1.6e-6 lower, but
+at controls 3.1 away, past a cost ridge; descent from iLQR's answer gains
+2.4e-8). Both sit in stiff, narrow valleys where damped steps crawl; the
+converged test (a full step gaining less than tolerance x cost) is
+iLQG.m's.
 
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
