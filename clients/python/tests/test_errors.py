@@ -40,6 +40,8 @@ from ilqr_client.errors import error_from_response, parse_retry_after
             id="several",
         ),
         pytest.param(Problem(extra={"bogus": True}), ["/bogus"], id="dataclass-extra"),
+        pytest.param({"obstacles": [{"center": [1, 1]}]}, ["/obstacles/0/weight"], id="missing-field"),
+        pytest.param({"horizon": "x"}, ["/horizon"], id="not-an-integer"),
     ],
 )
 def test_validation_errors(client: Client, problem: Any, pointers: List[str]) -> None:
