@@ -115,8 +115,7 @@ impl Default for Options {
 /// best trajectory found so far.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Status {
-    /// The relative cost change fell below the tolerance, or the gradient
-    /// with respect to every control is exactly zero.
+    /// The relative cost change fell below the tolerance.
     Converged,
     /// `max_iterations` were spent first.
     MaxIterations,
@@ -394,17 +393,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 break Status::MaxIterations;
             }
             // The model says even a full step would gain almost nothing.
-            // Only trusted once μ is small: a large μ damps the step, and so
-            // shrinks the predicted gain, far from the optimum too.
             if -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs() && mu <= options.mu_min {
-                break Status::Converged;
-            }
-            // Unless the prediction is exactly zero: with `Q_uu + μI`
-            // positive definite that needs `Q_u = 0` at every knot, so `d = 0`
-            // and `V_x = Q_x`, which do not depend on μ. The gradient of the
-            // unregularised cost is zero: a stationary point (a zero-cost
-            // problem, say), where raising μ would only end in `NoProgress`.
-            if bw.dv1 == 0.0 && bw.dv2 == 0.0 {
                 break Status::Converged;
             }
             iterations += 1;
