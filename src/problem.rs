@@ -56,6 +56,7 @@ pub const MAX_DT: f64 = 10.0;
 #[schema(example = json!(ProblemSpec::default()))]
 pub struct ProblemSpec {
     /// The dynamics model and its physical parameters.
+    #[serde(deserialize_with = "de_object")]
     pub model: ModelSpec,
     /// How the continuous dynamics are discretised.
     #[serde(deserialize_with = "de_name")]
@@ -77,8 +78,10 @@ pub struct ProblemSpec {
     #[schema(schema_with = schema::goal_state)]
     pub goal_state: [f64; 6],
     /// Diagonal cost weights.
+    #[serde(deserialize_with = "de_object")]
     pub weights: Weights,
     /// Soft obstacles. Default: one at (4.5, 4.5) with weight 1000.
+    #[serde(deserialize_with = "de_objects")]
     #[schema(max_items = 100)]
     pub obstacles: Vec<Obstacle>,
     /// Initial guess for the controls: N rows of `[u1, u2]` in N. Default:
@@ -87,8 +90,10 @@ pub struct ProblemSpec {
     #[schema(schema_with = schema::initial_controls)]
     pub initial_controls: Option<Vec<[f64; 2]>>,
     /// Termination settings.
+    #[serde(deserialize_with = "de_object")]
     pub solver: SolverSpec,
     /// Which optional parts of the result to return.
+    #[serde(deserialize_with = "de_object")]
     pub output: OutputSpec,
 }
 
@@ -516,8 +521,13 @@ impl<'de> Visitor<'de> for Count {
 
     fn visit_f64<E: serde::de::Error>(self, v: f64) -> Result<u64, E> {
         // 2^53: beyond it f64 no longer holds every integer.
-        if v >= 0.0 && v.fract() == 0.0 && v <= 9_007_199_254_740_992.0 {
+        const MAX_EXACT: f64 = 9_007_199_254_740_992.0;
+        if v >= 0.0 && v.fract() == 0.0 && v <= MAX_EXACT {
             Ok(v as u64)
+        } else if v > MAX_EXACT {
+            Err(E::custom(format_args!(
+                "{v:e} is too large: expected a non-negative integer of at most 2^53"
+            )))
         } else {
             Err(E::invalid_value(serde::de::Unexpected::Float(v), &self))
         }
@@ -544,6 +554,91 @@ impl<'de> Visitor<'de> for OptCount {
 
     fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
         d.deserialize_any(Count).map(Some)
+    }
+}
+
+/// A nested struct must be a JSON object. serde's derive also takes an
+/// array, filling the fields in order: `{"solver": [5]}` would silently set
+/// `max_iterations`. This reads the struct through [`ObjectOnly`], which
+/// asks for a map, so an array (or null) is an error that says an object
+/// was expected, and the error path still reaches into the fields.
+fn de_object<'de, D, T>(d: D) -> Result<T, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    T::deserialize(ObjectOnly(d))
+}
+
+/// An array of nested structs, each a JSON object (see [`de_object`]).
+fn de_objects<'de, D, T>(d: D) -> Result<Vec<T>, D::Error>
+where
+    D: Deserializer<'de>,
+    T: Deserialize<'de>,
+{
+    struct Objects<T>(std::marker::PhantomData<T>);
+
+    impl<'de, T: Deserialize<'de>> Visitor<'de> for Objects<T> {
+        type Value = Vec<T>;
+
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str("an array of JSON objects")
+        }
+
+        fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Vec<T>, A::Error> {
+            // No size hint: the body limit bounds the length, and the
+            // validator caps it.
+            let mut out = Vec::new();
+            while let Some(x) = seq.next_element_seed(ObjectSeed(std::marker::PhantomData))? {
+                out.push(x);
+            }
+            Ok(out)
+        }
+    }
+
+    struct ObjectSeed<T>(std::marker::PhantomData<T>);
+
+    impl<'de, T: Deserialize<'de>> serde::de::DeserializeSeed<'de> for ObjectSeed<T> {
+        type Value = T;
+
+        fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<T, D::Error> {
+            de_object(d)
+        }
+    }
+
+    d.deserialize_seq(Objects(std::marker::PhantomData))
+}
+
+/// A deserializer that gives struct visitors only maps.
+struct ObjectOnly<D>(D);
+
+impl<'de, D: Deserializer<'de>> Deserializer<'de> for ObjectOnly<D> {
+    type Error = D::Error;
+
+    fn deserialize_any<V: Visitor<'de>>(self, visitor: V) -> Result<V::Value, D::Error> {
+        self.0.deserialize_map(ObjectVisitor(visitor))
+    }
+
+    serde::forward_to_deserialize_any! {
+        bool i8 i16 i32 i64 i128 u8 u16 u32 u64 u128 f32 f64 char str string
+        bytes byte_buf option unit unit_struct newtype_struct seq tuple
+        tuple_struct map struct enum identifier ignored_any
+    }
+}
+
+/// Passes a map on to the struct's own visitor; anything else is an error
+/// that says "expected a JSON object" rather than a Rust type name.
+struct ObjectVisitor<V>(V);
+
+impl<'de, V: Visitor<'de>> Visitor<'de> for ObjectVisitor<V> {
+    type Value = V::Value;
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("a JSON object")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<V::Value, A::Error> {
+        self.0.visit_map(map)
     }
 }
 
@@ -589,6 +684,10 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     serde_path_to_error::deserialize::<_, ProblemSpec>(value).map_err(|e| {
         let mut pointer = pointer_of(e.path());
         let mut detail = e.into_inner().to_string();
+        // serde names the Rust type of a plain number field.
+        if let Some(head) = detail.strip_suffix("expected f64") {
+            detail = format!("{head}expected a number");
+        }
         // serde places a missing field at its parent object; point at the
         // field itself, which is what the caller has to add.
         if let Some(field) = detail

@@ -198,6 +198,47 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         assert!(detail.ends_with("expected a string"), "{doc}: {detail}");
     }
     assert!(errors(&json!({"integrator": "euler", "model": {"type": "quadrotor_2d"}})).is_empty());
+    // Nested structs are objects only: serde alone filled them from arrays
+    // in field order, so `{"solver": [5]}` set max_iterations to 5.
+    for (doc, pointer) in [
+        (json!({"model": []}), "/model"),
+        (json!({"weights": [[1, 1, 1, 1, 1, 1]]}), "/weights"),
+        (json!({"solver": [5]}), "/solver"),
+        (json!({"solver": null}), "/solver"),
+        (json!({"output": [false, false]}), "/output"),
+        (
+            json!({"obstacles": [{"center": [1, 1], "weight": 1}, [[1, 1], 5]]}),
+            "/obstacles/1",
+        ),
+    ] {
+        let (at, detail) = shape_error(doc.clone());
+        assert_eq!(at, pointer, "{doc}");
+        assert!(
+            detail.ends_with("expected a JSON object"),
+            "{doc}: {detail}"
+        );
+    }
+    assert_eq!(
+        shape_error(json!({"obstacles": {}})).1,
+        "invalid type: map, expected an array of JSON objects"
+    );
+    // ... and errors inside them still point into them.
+    assert_eq!(
+        shape_error(json!({"obstacles": [{"center": [1, 1], "weight": "a"}]})),
+        (
+            "/obstacles/0/weight".into(),
+            "invalid type: string \"a\", expected a number".into()
+        )
+    );
+    assert_eq!(
+        shape_error(json!({"model": {"mass": null}})).0,
+        "/model/mass"
+    );
+    // Integral but beyond 2^53, where f64 stops holding every integer.
+    assert_eq!(
+        shape_error(json!({"horizon": 1e20})).1,
+        "1e20 is too large: expected a non-negative integer of at most 2^53"
+    );
     // A missing field is pointed at, not its parent object.
     assert_eq!(
         shape_error(json!({"obstacles": [{"weight": 1}, {"center": [0, 0]}]})),
