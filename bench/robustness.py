@@ -20,8 +20,8 @@ is a false convergence: restarts and descent gain 1.3e-6 to 4.5e-6 and
 keep gaining slowly. Problem 219 is borderline (IPOPT 1.6e-6 lower, but
 at controls 3.1 away, past a cost ridge; descent from iLQR's answer gains
 2.4e-8). Both sit in stiff, narrow valleys where damped steps crawl; the
-converged test (a full step gaining less than tolerance x cost) is
-iLQG.m's.
+converged test (a full step gaining less than tolerance x |cost|) is a
+relative form of iLQG.m's dcost < tolFun.
 
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20

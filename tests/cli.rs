@@ -5,18 +5,41 @@
 use std::process::Command;
 
 /// Run `ilqr-service serve` on a free port with `args`; it must exit at
-/// once (a valid configuration would serve forever).
+/// once. A configuration it wrongly accepts would serve forever, so after
+/// 10 s the child is killed and the test fails rather than hangs.
 fn serve_with(args: &[&str]) -> (Option<i32>, String) {
-    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+    use std::io::Read;
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
         .args(["serve", "--bind", "127.0.0.1:0"])
         .args(args)
         .env_remove("ILQR_WORKERS")
         .env_remove("ILQR_MAX_HORIZON")
         .env_remove("ILQR_DEFAULT_TIME_LIMIT_MS")
         .env_remove("ILQR_MAX_TIME_LIMIT_MS")
-        .output()
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
         .unwrap();
-    (out.status.code(), String::from_utf8(out.stderr).unwrap())
+    let started = std::time::Instant::now();
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if started.elapsed() > std::time::Duration::from_secs(10) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("serve {args:?} was accepted: still serving after 10 s");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    let mut stderr = String::new();
+    child
+        .stderr
+        .take()
+        .unwrap()
+        .read_to_string(&mut stderr)
+        .unwrap();
+    (status.code(), stderr)
 }
 
 #[test]
@@ -35,11 +58,12 @@ fn settings_out_of_range_are_rejected_before_serving() {
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
         (
             &["--default-time-limit-ms", "70000"],
-            "--default-time-limit-ms (70000) must not exceed --max-time-limit-ms (60000)",
+            "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS (70000) must not exceed \
+             --max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS (60000)",
         ),
         (
             &["--max-time-limit-ms", "5000"],
-            "--default-time-limit-ms (10000) must not exceed --max-time-limit-ms (5000)",
+            "(10000) must not exceed --max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS (5000)",
         ),
     ] {
         let (code, stderr) = serve_with(args);
@@ -111,4 +135,33 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     let (code, stderr) = check(&[("ILQR_HEALTHCHECK_ADDR", &nobody)]);
     assert_eq!(code, Some(1));
     assert!(stderr.starts_with("unhealthy: "), "{stderr}");
+}
+
+/// A `Config` built in code gets the same checks: the service refuses to
+/// start rather than accept horizons its state bounds were not made for.
+#[test]
+fn a_config_built_in_code_is_checked_too() {
+    use ilqr_service::server::{AppState, Config};
+    for bad in [
+        Config {
+            max_horizon: 20_000,
+            ..Config::default()
+        },
+        Config {
+            max_horizon: 0,
+            ..Config::default()
+        },
+        Config {
+            default_time_limit_ms: 0,
+            ..Config::default()
+        },
+        Config {
+            default_time_limit_ms: 70_000,
+            ..Config::default()
+        },
+    ] {
+        let err = AppState::new(bad.clone()).err().expect("accepted");
+        assert_eq!(err.kind(), std::io::ErrorKind::InvalidInput, "{bad:?}");
+    }
+    assert!(AppState::new(Config::default()).is_ok());
 }

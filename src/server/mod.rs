@@ -135,12 +135,23 @@ impl Config {
         }
     }
 
-    /// Checks that span several settings (each flag's own range is checked
-    /// as it is parsed).
+    /// Settings the flags' own parsers cannot check, because they span two
+    /// settings, or because the `Config` was built in code rather than
+    /// parsed. [`AppState::new`] refuses a config that fails this.
     pub fn check(&self) -> Result<(), String> {
+        if !(1..=DEFAULT_MAX_HORIZON).contains(&self.max_horizon) {
+            return Err(format!(
+                "--max-horizon / ILQR_MAX_HORIZON ({}) must be from 1 to {DEFAULT_MAX_HORIZON}",
+                self.max_horizon
+            ));
+        }
+        if self.default_time_limit_ms == 0 || self.max_time_limit_ms == 0 {
+            return Err("time limits must be at least 1 ms".into());
+        }
         if self.default_time_limit_ms > self.max_time_limit_ms {
             return Err(format!(
-                "--default-time-limit-ms ({}) must not exceed --max-time-limit-ms ({})",
+                "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS ({}) must not exceed \
+                 --max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS ({})",
                 self.default_time_limit_ms, self.max_time_limit_ms
             ));
         }
@@ -186,6 +197,9 @@ pub struct AppState {
 impl AppState {
     /// State for `config`, starting the solver pool.
     pub fn new(config: Config) -> std::io::Result<Arc<Self>> {
+        config
+            .check()
+            .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
         metrics::handle(); // install the recorder before anything records
         let pool = Pool::new(config.workers(), config.queue_capacity)?;
         Ok(Arc::new(Self {

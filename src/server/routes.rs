@@ -37,7 +37,8 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
                        on every route: an unknown path is 404 and a wrong method 405. \
                        Only requests the HTTP layer itself cannot parse get an empty body \
                        and a closed connection: broken framing (a malformed request line or \
-                       `Content-Length`) is 400, more than 100 header fields is 431."
+                       `Content-Length`) is 400; more than 100 header fields, or a request \
+                       head over about 400 KiB, is 431."
     ),
     tags(
         (name = "solve", description = "Trajectory solves"),
@@ -218,7 +219,7 @@ fn is_json(headers: &HeaderMap) -> bool {
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Content-Type is not JSON", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
-        (status = 431, description = "More than 100 header fields: answered by the HTTP layer with an empty body, then the connection closes"),
+        (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
         (status = 503, description = "Queue full (with Retry-After) or shutting down", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
