@@ -182,8 +182,10 @@ pub struct SolverSpec {
     /// Wall-clock budget in ms. When it runs out the solve stops with status
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
-    /// of it; it is checked every iteration and between line-search
-    /// rollouts, so the answer can come up to one iteration late. At most
+    /// of it; it is checked every iteration, between line-search rollouts
+    /// and between the backward passes that raise the regularisation, so
+    /// the answer can come one backward pass and rollout late (about 1 ms
+    /// at N = 10000). At most
     /// the service's maximum (60000 unless configured). Unset: the service's
     /// default (10000 unless configured; the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]

@@ -64,9 +64,10 @@ pub struct Options {
     /// converged when a full step (α = 1) reduced the cost by less than
     /// `tolerance·|J|`, or when the model predicts a full step would.
     pub tolerance: f64,
-    /// Wall-clock budget; `None` for no limit. Checked once per iteration
-    /// and between the rollouts of a line search, so a solve can overrun it
-    /// by one linearisation, backward pass and rollout.
+    /// Wall-clock budget; `None` for no limit. Checked once per iteration,
+    /// between the rollouts of a line search and between the backward
+    /// passes that raise μ, so a solve can overrun it by one linearisation,
+    /// backward pass and rollout.
     pub time_limit: Option<Duration>,
     /// Initial regularisation μ (iLQG.m starts at 1: the first steps from a
     /// poor initial guess are damped, which here saves iterations).
@@ -217,10 +218,15 @@ pub struct Solver<const NX: usize, const NU: usize> {
     B: Vec<SMatrix<f64, NX, NU>>,
     stage: Vec<StageExpansion<NX, NU>>,
     terminal: TerminalExpansion<NX>,
-    /// Feedback gains `K_k`.
+    /// Feedback gains `K_k` of the last complete backward pass.
     K: Vec<SMatrix<f64, NU, NX>>,
-    /// Feedforward terms `d_k`.
+    /// Feedforward terms `d_k` of the last complete backward pass.
     d: Vec<SVector<f64, NU>>,
+    /// A backward pass writes here and is swapped into `K`, `d` only when it
+    /// completes, so a pass that fails on an indefinite `Q_uu` (or a solve
+    /// stopped while μ is being raised) never leaves a mix of two passes.
+    K_next: Vec<SMatrix<f64, NU, NX>>,
+    d_next: Vec<SVector<f64, NU>>,
     trace: Vec<TraceRow>,
 }
 
@@ -246,6 +252,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             terminal: TerminalExpansion::zeros(),
             K: Vec::new(),
             d: Vec::new(),
+            K_next: Vec::new(),
+            d_next: Vec::new(),
             trace: Vec::new(),
         };
         s.resize(horizon);
@@ -269,6 +277,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         exact(&mut self.stage, n, StageExpansion::zeros());
         exact(&mut self.K, n, SMatrix::zeros());
         exact(&mut self.d, n, SVector::zeros());
+        exact(&mut self.K_next, n, SMatrix::zeros());
+        exact(&mut self.d_next, n, SVector::zeros());
     }
 
     /// States `x_0..x_N` of the last solve.
@@ -282,9 +292,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     }
 
     /// Feedback gains `K_k` of the last solve: the closed-loop policy is
-    /// `u_k = ū_k + K_k (x_k − x̄_k)`. Unless the status is
-    /// [`Status::NoProgress`], they come from a backward pass about the
-    /// returned trajectory itself.
+    /// `u_k = ū_k + K_k (x_k − x̄_k)`. They come from the last complete
+    /// backward pass, which was about the returned trajectory itself unless
+    /// the solve stopped while raising μ for a new iterate ([`Status::NoProgress`],
+    /// or a time limit or cancellation at that point): then they are about
+    /// the iterate before the last accepted step, one step away, or zero if
+    /// no backward pass had completed yet.
     pub fn feedback(&self) -> &[SMatrix<f64, NU, NX>] {
         &self.K
     }
@@ -376,6 +389,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
                             break 'outer Status::NoProgress;
+                        }
+                        // Raising μ can take a dozen passes (μ from 1 to
+                        // 1e11), 20 ms at N = 10000: the budget is checked
+                        // between them too.
+                        if let Some(status) = interrupted() {
+                            break 'outer status;
                         }
                     }
                 }
@@ -514,14 +533,16 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 &self.stage[k],
                 &next,
                 mu,
-                &mut self.K[k],
-                &mut self.d[k],
+                &mut self.K_next[k],
+                &mut self.d_next[k],
                 &mut here,
             )?;
             dv1 += a;
             dv2 += b;
             std::mem::swap(&mut next, &mut here);
         }
+        std::mem::swap(&mut self.K, &mut self.K_next);
+        std::mem::swap(&mut self.d, &mut self.d_next);
         Some(Backward { dv1, dv2 })
     }
 

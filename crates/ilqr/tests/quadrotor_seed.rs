@@ -266,3 +266,46 @@ fn the_seed_over_a_long_horizon_converges() {
     let end = solver.states()[1000];
     assert!((end - goal()).norm() < 0.01, "ends at {end:?}");
 }
+
+/// The budget is checked between the backward passes that raise μ, too: at
+/// `N = 2000` the first pass needs μ far above 1, a dozen passes that took
+/// 12 ms past a 10 ms budget at `N = 10000`. With no budget at all the
+/// solve stops after the first failed pass, and since no pass completed the
+/// gains are zero, not the half-written gains of the failed pass.
+#[test]
+fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
+    let n = 2000;
+    let problem = seed_problem(n, 0.05);
+    let mut solver = Solver::new(n);
+    // Without a budget the first pass indeed fails at μ = 1.
+    let first = Options {
+        max_iterations: 0,
+        ..Options::default()
+    };
+    solver
+        .solve(&problem, &hover(n), &first, &AtomicBool::new(false))
+        .unwrap();
+    assert!(
+        solver
+            .feedback()
+            .iter()
+            .any(|k| k.iter().any(|v| *v != 0.0))
+    );
+
+    let options = Options {
+        time_limit: Some(Duration::ZERO),
+        ..Options::default()
+    };
+    let s = solver
+        .solve(&problem, &hover(n), &options, &AtomicBool::new(false))
+        .unwrap();
+    assert_eq!((s.status, s.iterations), (Status::TimeLimit, 0), "{s:?}");
+    assert!(
+        solver
+            .feedback()
+            .iter()
+            .all(|k| k.iter().all(|v| *v == 0.0))
+    );
+    assert!(solver.feedforward().iter().all(|d| *d == Vector2::zeros()));
+    assert_eq!(s.cost, s.initial_cost);
+}
