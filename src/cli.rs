@@ -37,8 +37,9 @@ enum Command {
     /// Exit 0 if the service on this machine answers `GET /healthz` with 200
     /// (for container health checks, which have no curl).
     Healthcheck {
-        /// Address of the service. Default: 127.0.0.1 at the port of
-        /// `ILQR_BIND` (8080 when unset), so it follows the server's setting.
+        /// Address of the service, HOST:PORT (`127.0.0.1:8080`,
+        /// `localhost:8080`). Default: 127.0.0.1 at the port of `ILQR_BIND`
+        /// (8080 when unset), so it follows the server's setting.
         #[arg(long, env = "ILQR_HEALTHCHECK_ADDR")]
         addr: Option<String>,
     },

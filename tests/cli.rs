@@ -56,6 +56,7 @@ fn settings_out_of_range_are_rejected_before_serving() {
         ),
         (&["--default-time-limit-ms", "0"], "--default-time-limit-ms"),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
+        (&["--retry-after-secs", "0"], "--retry-after-secs"),
         (
             &["--default-time-limit-ms", "70000"],
             "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS (70000) must not exceed \
@@ -130,6 +131,8 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     let any = format!("0.0.0.0:{port}");
     assert_eq!(check(&[("ILQR_BIND", &any)]).0, Some(0));
     assert_eq!(check(&[("ILQR_HEALTHCHECK_ADDR", &bind)]).0, Some(0));
+    let named = format!("localhost:{port}");
+    assert_eq!(check(&[("ILQR_HEALTHCHECK_ADDR", &named)]).0, Some(0));
 
     let nobody = format!("127.0.0.1:{}", free_port());
     let (code, stderr) = check(&[("ILQR_HEALTHCHECK_ADDR", &nobody)]);

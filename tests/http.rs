@@ -167,6 +167,11 @@ async fn the_default_problem_round_trips() {
     let spec: Value = s.get("/problems/default").await.json().await.unwrap();
     assert_eq!(spec["horizon"], 100);
     assert_eq!(spec["obstacles"][0]["center"], json!([4.5, 4.5]));
+    // Fully expanded: the budget a request without one gets is shown.
+    assert_eq!(
+        spec["solver"]["time_limit_ms"],
+        Config::default().default_time_limit_ms
+    );
     let a: Value = s.post(&spec).await.json().await.unwrap();
     let b: Value = s.post(&json!({})).await.json().await.unwrap();
     assert_eq!(a["cost"], b["cost"]);

@@ -86,7 +86,8 @@ pub struct Config {
     #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10)]
     pub shutdown_grace_secs: u64,
     /// `Retry-After` sent with 503 overload answers, in seconds.
-    #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1)]
+    #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1,
+          value_parser = clap::value_parser!(u64).range(1..))]
     pub retry_after_secs: u64,
     /// Seconds a client gets to send a request's headers, and again its
     /// body. A connection that stalls longer is closed (headers) or answered
@@ -444,9 +445,13 @@ fn init_logging(format: LogFormat) {
 /// `GET /healthz` over a plain TCP socket, for container health checks.
 pub fn healthcheck(addr: &str) -> Result<(), String> {
     let timeout = Duration::from_secs(2);
+    // `127.0.0.1:8080` or `localhost:8080`; the first address it resolves to.
+    use std::net::ToSocketAddrs;
     let sock: SocketAddr = addr
-        .parse()
-        .map_err(|e| format!("bad address {addr}: {e}"))?;
+        .to_socket_addrs()
+        .map_err(|e| format!("bad address {addr} (expected HOST:PORT): {e}"))?
+        .next()
+        .ok_or_else(|| format!("{addr} resolves to no address"))?;
     let mut stream =
         std::net::TcpStream::connect_timeout(&sock, timeout).map_err(|e| e.to_string())?;
     stream

@@ -469,15 +469,19 @@ fn reject(e: ApiError) -> ApiError {
 }
 
 /// The default problem (the seed scenario), every field expanded: fetch it,
-/// edit it, post it back.
+/// edit it, post it back. `solver.time_limit_ms` is this service's default
+/// budget; `initial_controls` is left out (its default, hover thrust, is N
+/// rows that would no longer fit once the horizon is edited).
 #[utoipa::path(
     get,
     path = "/problems/default",
     tag = "solve",
-    responses((status = 200, description = "The seed scenario", body = ProblemSpec))
+    responses((status = 200, description = "The seed scenario, with this service's default time budget", body = ProblemSpec))
 )]
-async fn default_problem() -> Json<ProblemSpec> {
-    Json(ProblemSpec::default())
+async fn default_problem(State(st): State<Arc<AppState>>) -> Json<ProblemSpec> {
+    let mut problem = ProblemSpec::default();
+    problem.solver.time_limit_ms = Some(st.config.default_time_limit_ms);
+    Json(problem)
 }
 
 /// Liveness or readiness answer.
