@@ -26,7 +26,8 @@ use crate::schema;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
-    /// The relative cost change fell below `solver.tolerance`.
+    /// The relative cost change fell below `solver.tolerance`, or the cost
+    /// is 0, its lower bound (a global optimum: every weight is zero, say).
     Converged,
     /// `solver.max_iterations` ran out first.
     MaxIterations,
@@ -184,6 +185,9 @@ pub fn solve(
         max_iterations: spec.solver.max_iterations,
         tolerance: spec.solver.tolerance,
         time_limit,
+        // Every term is non-negative (validation keeps weights ≥ 0), so a
+        // cost of 0 is a global optimum.
+        cost_lower_bound: Some(0.0),
         ..Options::default()
     };
 

@@ -177,6 +177,24 @@ async fn the_default_problem_round_trips() {
     assert_eq!(a["cost"], b["cost"]);
 }
 
+/// All weights zero and no obstacles: the cost is 0 whatever the
+/// trajectory, a global optimum, so `converged` at once (it used to take 14
+/// iterations to end `no_progress`).
+#[tokio::test]
+async fn a_zero_cost_problem_is_converged() {
+    let s = Server::default().await;
+    let zero = json!({
+        "weights": {"state": [0, 0, 0, 0, 0, 0], "control": [0, 0], "terminal": [0, 0, 0, 0, 0, 0]},
+        "obstacles": [],
+    });
+    let r: Value = s.post(&zero).await.json().await.unwrap();
+    assert_eq!(r["status"], "converged", "{r}");
+    assert_eq!(
+        (r["iterations"].as_u64(), r["cost"].as_f64()),
+        (Some(0), Some(0.0))
+    );
+}
+
 #[tokio::test]
 async fn gains_and_trace_can_be_left_out() {
     let s = Server::default().await;

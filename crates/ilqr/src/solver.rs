@@ -93,6 +93,12 @@ pub struct Options {
     pub step_sizes: Vec<f64>,
     /// Accept a step when actual/expected reduction exceeds this.
     pub acceptance: f64,
+    /// A known lower bound on the cost, if any: 0 when every term is
+    /// non-negative. A trajectory that attains it is a global optimum, so
+    /// the solve has converged there, even where the gradient test cannot
+    /// say so (a problem whose cost is identically zero: every step gains
+    /// nothing, and without the bound the solve ends `NoProgress`).
+    pub cost_lower_bound: Option<f64>,
 }
 
 impl Default for Options {
@@ -108,6 +114,7 @@ impl Default for Options {
             // 10^linspace(0, −3, 11), as in iLQG.m.
             step_sizes: (0..11).map(|i| 10f64.powf(-0.3 * f64::from(i))).collect(),
             acceptance: 1e-4,
+            cost_lower_bound: None,
         }
     }
 }
@@ -116,7 +123,8 @@ impl Default for Options {
 /// best trajectory found so far.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Status {
-    /// The relative cost change fell below the tolerance.
+    /// The relative cost change fell below the tolerance, or the cost
+    /// reached [`Options::cost_lower_bound`].
     Converged,
     /// `max_iterations` were spent first.
     MaxIterations,
@@ -402,7 +410,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
 
             // The gains now describe the current trajectory, so every exit
             // from here on returns a consistent policy.
-            if converged {
+            if converged || options.cost_lower_bound.is_some_and(|lb| cost <= lb) {
                 break Status::Converged;
             }
             if let Some(status) = interrupted() {

@@ -309,3 +309,46 @@ fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
     assert!(solver.feedforward().iter().all(|d| *d == Vector2::zeros()));
     assert_eq!(s.cost, s.initial_cost);
 }
+
+/// A problem whose cost is identically zero (every weight 0): no step gains
+/// anything, so the gradient test never fires and the solve ends
+/// `NoProgress`; with the lower bound 0 that every sum of non-negative terms
+/// has, the trajectory is known to be a global optimum and the solve
+/// converges at once. A cost above the bound changes nothing.
+#[test]
+fn a_cost_at_its_lower_bound_is_converged() {
+    let mut problem = seed_problem(100, 0.05);
+    problem.cost = ilqr::Objective::new()
+        .with_stage(ilqr::StateTracking {
+            goal: goal(),
+            weights: SVector::zeros(),
+        })
+        .with_stage(ilqr::ControlEffort {
+            weights: Vector2::zeros(),
+        })
+        .with_terminal(ilqr::TerminalTracking {
+            goal: goal(),
+            weights: SVector::zeros(),
+        });
+    let (_, s) = solve_problem(&problem, &Options::default());
+    assert_eq!(s.status, Status::NoProgress, "{s:?}");
+
+    let bounded = Options {
+        cost_lower_bound: Some(0.0),
+        ..Options::default()
+    };
+    let (solver, s) = solve_problem(&problem, &bounded);
+    assert_eq!(
+        (s.status, s.iterations, s.cost),
+        (Status::Converged, 0, 0.0)
+    );
+    assert!(solver.controls().iter().all(|u| *u == hover(1)[0]));
+
+    // The seed is unaffected: same answer, same iterations.
+    let (_, free) = solve_seed();
+    let (_, with_bound) = solve_with(&bounded);
+    assert_eq!(
+        (free.status, free.iterations, free.cost),
+        (with_bound.status, with_bound.iterations, with_bound.cost)
+    );
+}
