@@ -685,6 +685,20 @@ async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
         .unwrap();
 }
 
+/// Send raw `request` bytes and read until the server closes the
+/// connection, within 5 s: for requests no HTTP client will send.
+async fn raw_exchange(addr: SocketAddr, request: &[u8]) -> String {
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+    let mut conn = tokio::net::TcpStream::connect(addr).await.unwrap();
+    conn.write_all(request).await.unwrap();
+    let mut answer = Vec::new();
+    tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer))
+        .await
+        .expect("the connection was not closed within 5 s")
+        .unwrap();
+    String::from_utf8_lossy(&answer).into_owned()
+}
+
 /// Read from a raw connection until the server closes it; the time it took.
 async fn time_until_closed(mut conn: tokio::net::TcpStream, within: Duration) -> Duration {
     use tokio::io::AsyncReadExt;
@@ -728,18 +742,12 @@ async fn a_client_stalled_in_its_headers_is_disconnected() {
 /// A client that stalls mid-body gets a 408 problem after the read timeout.
 #[tokio::test]
 async fn a_client_stalled_in_its_body_gets_408() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let s = Server::start(read_timeout(1)).await;
-    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-    conn.write_all(
+    let answer = raw_exchange(
+        s.addr,
         b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nContent-Length: 100\r\n\r\n{\"dt\":",
     )
-    .await
-    .unwrap();
-    let mut answer = Vec::new();
-    let read = tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer)).await;
-    let answer = String::from_utf8_lossy(&answer);
-    assert!(read.is_ok(), "no answer within 5 s");
+    .await;
     assert!(answer.starts_with("HTTP/1.1 408"), "{answer}");
     assert!(answer.contains("application/problem+json"), "{answer}");
     assert!(
@@ -849,7 +857,6 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
 /// JSON".
 #[tokio::test]
 async fn body_framing_and_coding_edge_cases() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let s = Server::default().await;
     let res = reqwest::Client::new()
         .post(s.url("/solve"))
@@ -861,18 +868,11 @@ async fn body_framing_and_coding_edge_cases() {
         .unwrap();
     assert_eq!(res.status(), 200);
 
-    let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-    conn.write_all(
+    let answer = raw_exchange(
+        s.addr,
         b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\nTransfer-Encoding: chunked\r\n\r\nzz\r\n{}\r\n0\r\n\r\n",
     )
-    .await
-    .unwrap();
-    let mut answer = Vec::new();
-    tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer))
-        .await
-        .expect("no answer within 5 s")
-        .unwrap();
-    let answer = String::from_utf8_lossy(&answer);
+    .await;
     assert!(answer.starts_with("HTTP/1.1 400"), "{answer}");
     assert!(
         answer.contains("urn:ilqr-service:unreadable-body"),
@@ -886,7 +886,6 @@ async fn body_framing_and_coding_edge_cases() {
 /// waits on a half-read request).
 #[tokio::test]
 async fn requests_the_http_layer_rejects_get_the_documented_status() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let s = Server::default().await;
     let many: String = (0..120).map(|i| format!("x-h{i}: 1\r\n")).collect();
     for (request, status) in [
@@ -896,14 +895,7 @@ async fn requests_the_http_layer_rejects_get_the_documented_status() {
         ),
         (format!("GET /healthz HTTP/1.1\r\nHost: x\r\n{many}\r\n"), "431"),
     ] {
-        let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-        conn.write_all(request.as_bytes()).await.unwrap();
-        let mut answer = Vec::new();
-        tokio::time::timeout(Duration::from_secs(5), conn.read_to_end(&mut answer))
-            .await
-            .expect("the connection was not closed within 5 s")
-            .unwrap();
-        let answer = String::from_utf8_lossy(&answer);
+        let answer = raw_exchange(s.addr, request.as_bytes()).await;
         assert!(answer.starts_with(&format!("HTTP/1.1 {status}")), "{answer}");
         assert!(answer.contains("content-length: 0"), "{answer}");
     }
