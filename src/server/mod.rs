@@ -66,17 +66,14 @@ pub struct Config {
     pub queue_capacity: usize,
     /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms; at
     /// most `--max-time-limit-ms`.
-    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000,
-          value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000)]
     pub default_time_limit_ms: u64,
     /// Largest `solver.time_limit_ms` a request may ask for, in ms.
-    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000,
-          value_parser = clap::value_parser!(u64).range(1..))]
+    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000)]
     pub max_time_limit_ms: u64,
     /// Largest accepted horizon, from 1 to 10000 (the solver's own ceiling:
     /// the state bounds that keep every rollout finite assume it).
-    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON,
-          value_parser = max_horizon)]
+    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON)]
     pub max_horizon: usize,
     /// Largest accepted request body, in bytes.
     #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
@@ -136,18 +133,30 @@ impl Config {
         }
     }
 
-    /// Settings the flags' own parsers cannot check, because they span two
-    /// settings, or because the `Config` was built in code rather than
-    /// parsed. [`AppState::new`] refuses a config that fails this.
+    /// The ranges of the limits and how they relate, in one place for
+    /// parsed flags and a `Config` built in code alike: the CLI runs it
+    /// before binding, and [`AppState::new`] refuses a config that fails it.
     pub fn check(&self) -> Result<(), String> {
         if !(1..=DEFAULT_MAX_HORIZON).contains(&self.max_horizon) {
             return Err(format!(
-                "--max-horizon / ILQR_MAX_HORIZON ({}) must be from 1 to {DEFAULT_MAX_HORIZON}",
+                "--max-horizon / ILQR_MAX_HORIZON: expected an integer from 1 to \
+                 {DEFAULT_MAX_HORIZON}, got {}",
                 self.max_horizon
             ));
         }
-        if self.default_time_limit_ms == 0 || self.max_time_limit_ms == 0 {
-            return Err("time limits must be at least 1 ms".into());
+        for (name, ms) in [
+            (
+                "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS",
+                self.default_time_limit_ms,
+            ),
+            (
+                "--max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS",
+                self.max_time_limit_ms,
+            ),
+        ] {
+            if ms == 0 {
+                return Err(format!("{name}: expected at least 1 ms, got 0"));
+            }
         }
         if self.default_time_limit_ms > self.max_time_limit_ms {
             return Err(format!(
@@ -166,16 +175,6 @@ impl Config {
     fn runtime_threads(&self) -> usize {
         self.runtime_threads
             .map_or_else(|| cores().div_ceil(8), std::num::NonZeroUsize::get)
-    }
-}
-
-/// `--max-horizon`: an integer from 1 to [`DEFAULT_MAX_HORIZON`].
-fn max_horizon(s: &str) -> Result<usize, String> {
-    match s.parse::<usize>() {
-        Ok(n) if (1..=DEFAULT_MAX_HORIZON).contains(&n) => Ok(n),
-        _ => Err(format!(
-            "expected an integer from 1 to {DEFAULT_MAX_HORIZON}"
-        )),
     }
 }
 
