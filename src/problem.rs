@@ -676,14 +676,9 @@ pub enum ParseError {
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     let value: serde_json::Value =
         serde_json::from_slice(bytes).map_err(|e| ParseError::Syntax(e.to_string()))?;
-    if !value.is_object() {
-        // serde would accept an array for a struct; a problem is an object.
-        return Err(ParseError::Shape(FieldError {
-            pointer: String::new(),
-            detail: "expected a JSON object (a problem document)".into(),
-        }));
-    }
-    serde_path_to_error::deserialize::<_, ProblemSpec>(value).map_err(|e| {
+    // Through `ObjectOnly` like every nested struct: serde alone would take
+    // an array for the document too.
+    serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(value)).map_err(|e| {
         let mut pointer = pointer_of(e.path());
         let mut detail = e.into_inner().to_string();
         // serde names the Rust type of a plain number field.
