@@ -185,9 +185,9 @@ pub struct SolverSpec {
     /// of it; it is checked every iteration, between line-search rollouts
     /// and between the backward passes that raise the regularisation, so
     /// the answer can come one backward pass and rollout late (about 1 ms
-    /// at N = 10000). At most
-    /// the service's maximum (60000 unless configured). Unset: the service's
-    /// default (10000 unless configured; the CLI has none).
+    /// at N = 10000). At most the service's maximum (60000 unless
+    /// configured). Unset: the service's default (10000 unless configured;
+    /// the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,

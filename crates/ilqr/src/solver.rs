@@ -398,9 +398,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         if mu > options.mu_max {
                             break 'outer Status::NoProgress;
                         }
-                        // Raising μ can take a dozen passes (μ from 1 to
-                        // 1e11), 20 ms at N = 10000: the budget is checked
-                        // between them too.
+                        // Raising μ can take a dozen passes (μ from 1 past
+                        // 1e11): unchecked, a 10 ms budget at N = 10000
+                        // ended 11.7 ms late (BENCHMARKS.md). So the budget
+                        // is checked between them too.
                         if let Some(status) = interrupted() {
                             break 'outer status;
                         }
