@@ -62,7 +62,9 @@ pub struct Options {
     pub max_iterations: usize,
     /// Convergence threshold, relative to the current cost: the solve has
     /// converged when a full step (α = 1) reduced the cost by less than
-    /// `tolerance·|J|`, or when the model predicts a full step would.
+    /// `tolerance·|J|`, or when the model predicts a full step would and
+    /// `Q_uu` is positive definite without regularisation (μ ≤ `mu_min`, or
+    /// a pass at μ = 0 succeeds).
     pub tolerance: f64,
     /// Wall-clock budget; `None` for no limit. Checked once per iteration,
     /// between the rollouts of a line search and between the backward
@@ -172,6 +174,12 @@ pub struct Summary {
     pub iterations: usize,
     /// Wall-clock time of the whole solve.
     pub solve_time: Duration,
+    /// Whether a backward pass completed, so that [`Solver::feedback`] and
+    /// [`Solver::feedforward`] hold a policy. False only when the solve
+    /// ended while the first pass was still raising μ (a time limit,
+    /// cancellation or [`Status::NoProgress`] at iteration 0); the gains are
+    /// then zero, which is no policy at all.
+    pub has_gains: bool,
 }
 
 /// Input the solver cannot work with.
@@ -305,7 +313,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// the solve stopped while raising μ for a new iterate ([`Status::NoProgress`],
     /// or a time limit or cancellation at that point): then they are about
     /// the iterate before the last accepted step, one step away, or zero if
-    /// no backward pass had completed yet.
+    /// no backward pass had completed yet ([`Summary::has_gains`] false).
     pub fn feedback(&self) -> &[SMatrix<f64, NU, NX>] {
         &self.K
     }
@@ -379,6 +387,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut iterations = 0;
         let mut converged = false;
         let mut stale = true;
+        let mut has_gains = false;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
@@ -390,9 +399,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             }
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
-            let bw = loop {
+            let mut bw = loop {
                 match self.backward(mu) {
-                    Some(bw) => break bw,
+                    Some(bw) => {
+                        has_gains = true;
+                        break bw;
+                    }
                     None => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
@@ -420,8 +432,28 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             if iterations >= options.max_iterations {
                 break Status::MaxIterations;
             }
-            // The model says even a full step would gain almost nothing.
-            if -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs() && mu <= options.mu_min {
+            // The model says even a full step would gain almost nothing. That
+            // is only evidence of a minimum without regularisation: a large μ
+            // shrinks the step, and its predicted gain, wherever the iterate
+            // is. So with μ above μ_min, one more pass at μ = 0 decides. If
+            // Q_uu is positive definite at every knot there, the model is
+            // convex and that pass's prediction is trusted (converged, or a
+            // plain Newton step to take); if not (a maximum or saddle, such
+            // as an obstacle's centre), the gains of the pass at μ are
+            // untouched and the solve goes on as before. Without this, a
+            // solve whose last accepted steps were tiny partial ones kept μ
+            // above μ_min, its line searches then failed on round-off, and
+            // it ended `NoProgress` at a solution converged to 1e-16
+            // (`dt = 10`, no obstacles).
+            let negligible = |bw: &Backward| -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs();
+            if negligible(&bw)
+                && mu > options.mu_min
+                && let Some(unregularised) = self.backward(0.0)
+            {
+                bw = unregularised;
+                mu = 0.0;
+            }
+            if negligible(&bw) && mu <= options.mu_min {
                 break Status::Converged;
             }
             iterations += 1;
@@ -499,6 +531,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             initial_cost,
             iterations,
             solve_time: start.elapsed(),
+            has_gains,
         })
     }
 

@@ -282,9 +282,10 @@ fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
         max_iterations: 0,
         ..Options::default()
     };
-    solver
+    let s = solver
         .solve(&problem, &hover(n), &first, &AtomicBool::new(false))
         .unwrap();
+    assert!(s.has_gains);
     assert!(
         solver
             .feedback()
@@ -300,6 +301,7 @@ fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
         .solve(&problem, &hover(n), &options, &AtomicBool::new(false))
         .unwrap();
     assert_eq!((s.status, s.iterations), (Status::TimeLimit, 0), "{s:?}");
+    assert!(!s.has_gains);
     assert!(
         solver
             .feedback()
@@ -351,4 +353,83 @@ fn a_cost_at_its_lower_bound_is_converged() {
         (free.status, free.iterations, free.cost),
         (with_bound.status, with_bound.iterations, with_bound.cost)
     );
+}
+
+/// The seed without its obstacle at `dt = 10`: a full step reaches the goal
+/// to 1e-10 in two iterations, and what a next step could gain is below
+/// round-off. Tiny accepted partial steps used to leave μ above `mu_min`,
+/// where the model test was not trusted; every later line search failed on
+/// round-off until μ passed `mu_max`, and the solve ended `NoProgress` after
+/// 19 iterations at this same optimum. A pass at μ = 0 now confirms it.
+#[test]
+fn an_optimum_reached_to_round_off_is_converged_not_no_progress() {
+    let mut problem = seed_problem(100, 10.0);
+    problem.cost = ilqr::Objective::new()
+        .with_stage(ilqr::StateTracking {
+            goal: goal(),
+            weights: SVector::repeat(1.0),
+        })
+        .with_stage(ilqr::ControlEffort {
+            weights: Vector2::repeat(0.1),
+        })
+        .with_terminal(ilqr::TerminalTracking {
+            goal: goal(),
+            weights: SVector::repeat(50000.0),
+        });
+    let (solver, s) = solve_problem(&problem, &Options::default());
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert!(s.iterations <= 5, "{s:?}");
+    let end = solver.states()[100];
+    assert!((end - goal()).norm() < 1e-6, "ends at {end:?}");
+    // The gains describe the returned trajectory: they come from a complete
+    // pass, not zero.
+    assert!(
+        solver
+            .feedback()
+            .iter()
+            .all(|k| k.iter().all(|v| v.is_finite()))
+    );
+    assert!(solver.feedback().iter().any(|k| k.norm() > 0.0));
+}
+
+/// The same check must not call a maximum converged: start and goal on the
+/// obstacle's centre, no gravity and zero thrust hold the quadrotor on the
+/// cone tip, where the gradient is zero and a heavily regularised step
+/// predicts no gain. `Q_uu` is indefinite there without μ, so the pass at
+/// μ = 0 fails and the solve still ends `NoProgress` with the initial
+/// guess (cost q·N = 1e5), not `Converged`.
+#[test]
+fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
+    let centre = SVector::from([OBSTACLE[0], OBSTACLE[1], 0.0, 0.0, 0.0, 0.0]);
+    let mut problem = seed_problem(100, 0.05);
+    problem.dynamics.model.gravity = 0.0;
+    problem.x0 = centre;
+    problem.cost = ilqr::Objective::new()
+        .with_stage(ilqr::StateTracking {
+            goal: centre,
+            weights: SVector::repeat(1.0),
+        })
+        .with_stage(ilqr::ControlEffort {
+            weights: Vector2::repeat(0.1),
+        })
+        .with_stage(ilqr::ExpObstacle {
+            center: Vector2::from(OBSTACLE),
+            weight: 1000.0,
+            position: (0, 1),
+        })
+        .with_terminal(ilqr::TerminalTracking {
+            goal: centre,
+            weights: SVector::repeat(50000.0),
+        });
+    let mut solver = Solver::new(100);
+    let s = solver
+        .solve(
+            &problem,
+            &vec![Vector2::zeros(); 100],
+            &Options::default(),
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+    assert_eq!(s.status, Status::NoProgress, "{s:?}");
+    assert_eq!(s.cost, 1e5, "{s:?}");
 }
