@@ -86,7 +86,10 @@ pub struct SolveResult {
     /// The optimised controls.
     #[schema(schema_with = schema::controls)]
     pub controls: Vec<[f64; 2]>,
-    /// The time-varying feedback policy; absent when `output.gains` is false.
+    /// The time-varying feedback policy. Absent when `output.gains` is
+    /// false, and when no backward pass completed: a solve that ended
+    /// (`time_limit`, `cancelled` or `no_progress`, 0 iterations) while its
+    /// first pass was still raising the regularisation has no policy to give.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     pub gains: Option<Gains>,
     /// One row per iteration; absent when `output.trace` is false.
@@ -230,7 +233,9 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
                 .fold(f64::INFINITY, f64::min)
         })
         .collect();
-    let gains = spec.output.gains.then(|| Gains {
+    // Zero gains from a solve whose first backward pass never completed
+    // would read as a valid (open-loop) policy; leave them out instead.
+    let gains = (spec.output.gains && summary.has_gains).then(|| Gains {
         feedback: solver
             .feedback()
             .iter()

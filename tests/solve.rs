@@ -107,6 +107,35 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
     assert!(again.cost <= first.cost);
 }
 
+/// A solve whose first backward pass never completes has no policy: at
+/// `dt = 10` the seed's first pass fails at every μ up to its maximum, and
+/// the answer (`no_progress`, 0 iterations, the initial guess) leaves the
+/// gains out rather than sending zeros that read as an open-loop policy.
+/// A solve with even one complete pass keeps them, `max_iterations: 0`
+/// included.
+#[test]
+fn gains_are_left_out_when_no_backward_pass_completed() {
+    let cancel = AtomicBool::new(false);
+    let r = solve(&spec(json!({"dt": 10})), None, &cancel).unwrap();
+    assert_eq!(
+        (r.status.as_str(), r.iterations, r.cost),
+        ("no_progress", 0, r.initial_cost)
+    );
+    assert!(r.gains.is_none());
+    let wire: serde_json::Value = serde_json::from_slice(&r.to_json().unwrap()).unwrap();
+    assert!(wire.get("gains").is_none(), "{wire}");
+
+    let r = solve(
+        &spec(json!({"solver": {"max_iterations": 0}})),
+        None,
+        &cancel,
+    )
+    .unwrap();
+    assert_eq!((r.status.as_str(), r.iterations), ("max_iterations", 0));
+    let gains = r.gains.expect("one backward pass completed");
+    assert!(gains.feedback.iter().flatten().flatten().any(|k| *k != 0.0));
+}
+
 /// `solve -o -` puts the result JSON alone on standard output (so it pipes
 /// into jq) and the human summary on standard error; a bad problem is an
 /// error naming the field, with exit status 2.

@@ -177,6 +177,13 @@ def test_problem_documents_map_by_type() -> None:
     ))
     assert isinstance(internal, ServerError) and internal.request_id == "r-1"
 
+    # Broken chunked framing: the service answers 400 unreadable-body.
+    unreadable = error_from_response(fake_response(
+        400, '{"type":"urn:ilqr-service:unreadable-body","title":"Request body unreadable",'
+        '"status":400,"detail":"the body could not be read: ..."}'
+    ))
+    assert type(unreadable) is MalformedRequestError and unreadable.slug == "unreadable-body"
+
     unknown = error_from_response(fake_response(
         400, '{"type":"urn:ilqr-service:something-new","title":"New","status":400,"detail":"d"}'
     ))

@@ -142,7 +142,9 @@ class ApiError(Exception):
 
 
 class MalformedRequestError(ApiError):
-    """400 ``malformed-json``: the body was not valid JSON."""
+    """400 ``malformed-json`` (the body was not valid JSON) or
+    ``unreadable-body`` (the body could not be read: broken chunked
+    encoding, say)."""
 
 
 class ValidationError(ApiError):
@@ -199,6 +201,7 @@ class UnexpectedResponseError(ApiError):
 
 _BY_SLUG: Dict[str, Type[ApiError]] = {
     "malformed-json": MalformedRequestError,
+    "unreadable-body": MalformedRequestError,
     "validation": ValidationError,
     "unsupported-media-type": UnsupportedMediaTypeError,
     "payload-too-large": PayloadTooLargeError,

@@ -483,7 +483,8 @@ class SolveResult:
         controls: u_0..u_{N−1}, N rows of ``[u1, u2]``.
         solve_time_ms: Time spent solving, in ms.
         queue_time_ms: Time spent waiting for a worker, in ms.
-        gains: The feedback policy, or ``None`` when ``output.gains`` was false.
+        gains: The feedback policy, or ``None`` when ``output.gains`` was false
+            or no backward pass completed (0 iterations, no policy to give).
         trace: One entry per iteration, or ``None`` when ``output.trace`` was false.
         request_id: The ``x-request-id`` of the answer (not part of equality).
     """
