@@ -29,6 +29,23 @@ fn solve_seed() -> (Solver<6, 2>, Summary) {
     solve_with(&Options::default())
 }
 
+/// The seed's quadratic terms about `goal`, with diagonal weights `q`
+/// (state), `r` (control) and `qf` (terminal), and no obstacle.
+fn tracking(goal: SVector<f64, 6>, q: f64, r: f64, qf: f64) -> ilqr::Objective<6, 2> {
+    ilqr::Objective::new()
+        .with_stage(ilqr::StateTracking {
+            goal,
+            weights: SVector::repeat(q),
+        })
+        .with_stage(ilqr::ControlEffort {
+            weights: Vector2::repeat(r),
+        })
+        .with_terminal(ilqr::TerminalTracking {
+            goal,
+            weights: SVector::repeat(qf),
+        })
+}
+
 #[test]
 fn seed_converges_to_the_reference_optimum() {
     let (_, s) = solve_seed();
@@ -320,18 +337,7 @@ fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
 #[test]
 fn a_cost_at_its_lower_bound_is_converged() {
     let mut problem = seed_problem(100, 0.05);
-    problem.cost = ilqr::Objective::new()
-        .with_stage(ilqr::StateTracking {
-            goal: goal(),
-            weights: SVector::zeros(),
-        })
-        .with_stage(ilqr::ControlEffort {
-            weights: Vector2::zeros(),
-        })
-        .with_terminal(ilqr::TerminalTracking {
-            goal: goal(),
-            weights: SVector::zeros(),
-        });
+    problem.cost = tracking(goal(), 0.0, 0.0, 0.0);
     let (_, s) = solve_problem(&problem, &Options::default());
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
 
@@ -364,18 +370,7 @@ fn a_cost_at_its_lower_bound_is_converged() {
 #[test]
 fn an_optimum_reached_to_round_off_is_converged_not_no_progress() {
     let mut problem = seed_problem(100, 10.0);
-    problem.cost = ilqr::Objective::new()
-        .with_stage(ilqr::StateTracking {
-            goal: goal(),
-            weights: SVector::repeat(1.0),
-        })
-        .with_stage(ilqr::ControlEffort {
-            weights: Vector2::repeat(0.1),
-        })
-        .with_terminal(ilqr::TerminalTracking {
-            goal: goal(),
-            weights: SVector::repeat(50000.0),
-        });
+    problem.cost = tracking(goal(), 1.0, 0.1, 50000.0);
     let (solver, s) = solve_problem(&problem, &Options::default());
     assert_eq!(s.status, Status::Converged, "{s:?}");
     assert!(s.iterations <= 5, "{s:?}");
@@ -404,23 +399,11 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     let mut problem = seed_problem(100, 0.05);
     problem.dynamics.model.gravity = 0.0;
     problem.x0 = centre;
-    problem.cost = ilqr::Objective::new()
-        .with_stage(ilqr::StateTracking {
-            goal: centre,
-            weights: SVector::repeat(1.0),
-        })
-        .with_stage(ilqr::ControlEffort {
-            weights: Vector2::repeat(0.1),
-        })
-        .with_stage(ilqr::ExpObstacle {
-            center: Vector2::from(OBSTACLE),
-            weight: 1000.0,
-            position: (0, 1),
-        })
-        .with_terminal(ilqr::TerminalTracking {
-            goal: centre,
-            weights: SVector::repeat(50000.0),
-        });
+    problem.cost = tracking(centre, 1.0, 0.1, 50000.0).with_stage(ilqr::ExpObstacle {
+        center: Vector2::from(OBSTACLE),
+        weight: 1000.0,
+        position: (0, 1),
+    });
     let mut solver = Solver::new(100);
     let s = solver
         .solve(
