@@ -26,6 +26,12 @@ tried: the 11 then ended no_progress (5) or max_iterations (6) after 1.3k
 more iterations in all, and only 127 got lower (by 1.9e-6), so 9 genuine
 optima would have lost their converged status for one false one.
 
+Also tried (2026-11-23, at 6f713a3): counting a partial step as converged
+when actual <= alpha x tolerance x |cost| (iLQG.m's dcost < tolFun takes any
+step size). It moved 7 of the 39 max_iterations to converged, but at costs
+up to 3.2e-5 above what the 500 iterations reached, and stopped 50
+converged solves earlier at costs up to 5.6e-7 higher: premature, rejected.
+
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
 (23a4aa3) converged 259, max_iterations 39, no_progress 2.
