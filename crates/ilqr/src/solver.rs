@@ -27,7 +27,8 @@
 //! ended is a [`Status`]; only malformed input is a [`SolveError`].
 //!
 //! Every buffer lives in [`Solver`] and is sized before the loop starts, so
-//! the loop itself does not allocate (checked by `tests/allocation.rs`).
+//! the loop itself does not allocate (checked by `tests/allocation.rs`);
+//! the one exception is a trace longer than its 10000 reserved rows.
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
@@ -40,6 +41,10 @@ use crate::kernels::{
     add_mul, add_mul_lower, axpy, dot, ldlt, ldlt_solve_right, ldlt_solve_vec, mirror_lower,
     mul_square_sparse, transpose,
 };
+
+/// Trace rows reserved before the loop: 10000 rows, 720 KB. The loop
+/// allocates only if a solve runs more iterations than that.
+const TRACE_RESERVE: usize = 10_000;
 
 /// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
 /// `dynamics`, starting from `x0`.
@@ -59,6 +64,8 @@ pub struct Problem<D, C, const NX: usize> {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Options {
     /// Upper bound on iterations (one backward and one forward pass each).
+    /// Any value is safe, `usize::MAX` included (to leave the stop to
+    /// `time_limit`): the trace reserves at most 10000 rows up front.
     pub max_iterations: usize,
     /// Convergence threshold, relative to the current cost: the solve has
     /// converged when a full step (α = 1) reduced the cost by less than
@@ -358,15 +365,24 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // Everything that may allocate happens here, before the loop.
         self.resize(n);
         self.trace.clear();
-        self.trace.reserve(options.max_iterations);
+        // Up to TRACE_RESERVE rows up front (72 B each): reserving
+        // `max_iterations` itself would let a large cap, meant to leave the
+        // stop to a time limit, abort the process on allocation. A solve that
+        // runs past the reserve grows the trace in the loop, by doubling.
+        self.trace
+            .reserve(options.max_iterations.min(TRACE_RESERVE));
         self.us[..n].copy_from_slice(u_init);
         self.K[..n].fill(SMatrix::zeros());
         self.d[..n].fill(SVector::zeros());
 
         self.xs[0] = problem.x0;
         let mut cost = rollout(problem, &mut self.xs, &self.us);
-        if !cost.is_finite() {
-            let knot = self.xs.iter().position(|x| !all_finite(x)).unwrap_or(n);
+        // States too, not only the cost: a cost that does not read every
+        // state component (control effort only, say) stays finite over a
+        // NaN state.
+        let bad_state = self.xs[..=n].iter().position(|x| !all_finite(x));
+        if !cost.is_finite() || bad_state.is_some() {
+            let knot = bad_state.unwrap_or(n);
             return Err(SolveError::InitialRolloutNotFinite { knot });
         }
         let initial_cost = cost;

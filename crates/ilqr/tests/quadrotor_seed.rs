@@ -240,6 +240,33 @@ fn input_the_solver_cannot_use_is_an_error_not_a_panic() {
         solver.solve(&problem, &huge, &o, &never).unwrap_err(),
         ilqr::SolveError::InitialRolloutNotFinite { .. }
     ));
+    // A NaN state is caught even where the cost does not read it (control
+    // effort only, so the cost stays finite).
+    let mut blind = seed_problem(100, 0.05);
+    blind.x0[0] = f64::NAN;
+    blind.cost = ilqr::Objective::new().with_stage(ilqr::ControlEffort {
+        weights: Vector2::repeat(0.1),
+    });
+    assert_eq!(
+        solver.solve(&blind, &hover(100), &o, &never).unwrap_err(),
+        ilqr::SolveError::InitialRolloutNotFinite { knot: 0 }
+    );
+}
+
+/// `max_iterations` of any size is safe: the trace used to reserve that many
+/// rows up front, a capacity-overflow panic at `usize::MAX` and an abort on
+/// allocation at 2^40. The seed still converges in its 16 iterations.
+#[test]
+fn an_unbounded_iteration_cap_is_safe() {
+    for cap in [usize::MAX, 1 << 40] {
+        let (solver, s) = solve_with(&Options {
+            max_iterations: cap,
+            time_limit: Some(Duration::from_secs(10)),
+            ..Options::default()
+        });
+        assert_eq!((s.status, s.iterations), (Status::Converged, 16), "{s:?}");
+        assert_eq!(solver.trace().len(), 16);
+    }
 }
 
 /// At an obstacle centre the cost is a cone tip: zero gradient, unbounded
