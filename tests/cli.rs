@@ -168,3 +168,41 @@ fn a_config_built_in_code_is_checked_too() {
     }
     assert!(AppState::new(Config::default()).is_ok());
 }
+
+/// `text` logs carry no colour escapes when stdout is not a terminal (a
+/// file, a pipe, `docker logs`): they used to, on every line.
+#[test]
+fn text_logs_to_a_pipe_have_no_colour_escapes() {
+    use std::io::Read;
+    let bind = format!("127.0.0.1:{}", free_port());
+    let mut server = Child(
+        Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .args(["serve", "--bind", &bind, "--workers", "1"])
+            .env_remove("ILQR_LOG_FORMAT")
+            .env("RUST_LOG", "info")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null())
+            .spawn()
+            .unwrap(),
+    );
+    let started = std::time::Instant::now();
+    while ilqr_service::server::healthcheck(&bind).is_err() {
+        assert!(
+            started.elapsed() < std::time::Duration::from_secs(10),
+            "the service on {bind} never became healthy"
+        );
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    }
+    let _ = server.0.kill();
+    let _ = server.0.wait();
+    let mut logs = String::new();
+    server
+        .0
+        .stdout
+        .take()
+        .unwrap()
+        .read_to_string(&mut logs)
+        .unwrap();
+    assert!(logs.contains("INFO"), "no log lines: {logs:?}");
+    assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
+}
