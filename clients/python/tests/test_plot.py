@@ -56,6 +56,22 @@ def test_plot_cost_is_log_scale(seed_result: SolveResult, figure: Any) -> None:
     assert len(ax.lines[0].get_ydata()) == seed_result.iterations + 1
 
 
+def test_plot_cost_of_a_zero_cost_result_is_linear(client: Any, figure: Any) -> None:
+    # Every weight 0 and no obstacle: cost 0 from the start, `converged`.
+    # A log scale has nothing to show there (matplotlib warned and drew an
+    # empty panel).
+    zero = {"weights": {"state": [0] * 6, "control": [0, 0], "terminal": [0] * 6}, "obstacles": []}
+    result = client.solve(zero)
+    assert (result.status, result.cost) == ("converged", 0.0)
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        ax = plot_cost(result, ax=figure.subplots())
+    assert ax.get_yscale() == "linear"
+    assert list(ax.lines[0].get_ydata()) == [0.0]
+
+
 def test_plot_cost_needs_a_trace(seed_result: SolveResult) -> None:
     import dataclasses
 

@@ -138,10 +138,12 @@ def plot_solution(
 
 
 def plot_cost(result: SolveResult, ax: Optional["Axes"] = None) -> "Axes":
-    """Draw the cost per iteration on a log scale.
+    """Draw the cost per iteration, on a log scale when every cost is positive.
 
     Iteration 0 is the initial guess's cost; iterations whose step was
-    rejected (``step_size == 0``) are marked with red crosses.
+    rejected (``step_size == 0``) are marked with red crosses. A history
+    that reaches 0 (every weight 0, say: a valid ``converged`` answer) has no
+    log scale and is drawn on a linear one.
 
     Args:
         result: A solve result with a trace (solved with ``output.trace`` true,
@@ -166,7 +168,8 @@ def plot_cost(result: SolveResult, ax: Optional["Axes"] = None) -> "Axes":
     if rejected:
         ax.plot([it for it, _ in rejected], [c for _, c in rejected], "x", color="tab:red",
                 markersize=7, label="step rejected")
-    ax.set_yscale("log")
+    if all(c > 0 for c in costs):
+        ax.set_yscale("log")
     ax.set_xlabel("iteration")
     ax.set_ylabel("cost J")
     ax.set_title(f"cost: {result.iterations} iterations, {result.solve_time_ms:.1f} ms")
