@@ -32,6 +32,12 @@ step size). It moved 7 of the 39 max_iterations to converged, but at costs
 up to 3.2e-5 above what the 500 iterations reached, and stopped 50
 converged solves earlier at costs up to 5.6e-7 higher: premature, rejected.
 
+Also tried the same day: Crocoddyl's regularisation rule after an accepted
+step (lower mu only if alpha > 0.5, raise it if alpha <= 0.01, else keep
+it) instead of Tassa's (lower after every accepted step). Converged 252,
+max_iterations 43, no_progress 5; without the raise, 253 / 43 / 4. Both
+worse than 259 / 39 / 2, rejected; the seed was unchanged either way.
+
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
 (23a4aa3) converged 259, max_iterations 39, no_progress 2.
