@@ -639,6 +639,46 @@ async fn docs_and_spec_are_served() {
     assert_eq!(s.get("/readyz").await.status(), 200);
 }
 
+/// The spec lists every GET route the service serves, its own two included,
+/// and each answers with a status and content type the spec documents for
+/// it: a reader of the spec finds `/docs` and gets what it promises.
+#[tokio::test]
+async fn every_documented_get_answers_as_documented() {
+    let s = Server::default().await;
+    let spec: Value = s.get("/openapi.json").await.json().await.unwrap();
+    let paths = spec["paths"].as_object().unwrap();
+    let mut gets: Vec<&str> = paths
+        .iter()
+        .filter(|(_, item)| item.get("get").is_some())
+        .map(|(path, _)| path.as_str())
+        .collect();
+    gets.sort_unstable();
+    assert_eq!(
+        gets,
+        [
+            "/docs/",
+            "/healthz",
+            "/metrics",
+            "/openapi.json",
+            "/problems/default",
+            "/readyz"
+        ]
+    );
+    for path in gets {
+        let answer = s.get(path).await;
+        let status = answer.status().as_u16().to_string();
+        let documented = &paths[path]["get"]["responses"][&status]["content"];
+        let content_type = answer.headers()[reqwest::header::CONTENT_TYPE]
+            .to_str()
+            .unwrap();
+        let media = content_type.split(';').next().unwrap().trim();
+        assert!(
+            documented.get(media).is_some(),
+            "GET {path} answered {status} {content_type}; the spec documents {documented}"
+        );
+    }
+}
+
 #[tokio::test]
 async fn shutdown_drains_in_flight_solves_then_stops() {
     let mut s = Server::start(Config {

@@ -42,7 +42,7 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
     ),
     tags(
         (name = "solve", description = "Trajectory solves"),
-        (name = "operations", description = "Health, readiness and metrics")
+        (name = "operations", description = "Health, readiness, metrics and this documentation")
     )
 )]
 pub struct ApiDoc;
@@ -58,7 +58,54 @@ fn api_router() -> OpenApiRouter<Arc<AppState>> {
 
 /// The OpenAPI document (no server state needed).
 pub fn openapi() -> utoipa::openapi::OpenApi {
-    api_router().split_for_parts().1
+    with_docs_routes(api_router().split_for_parts().1)
+}
+
+/// Adds the two routes Swagger UI serves to the spec. They are not handlers
+/// of ours, so utoipa cannot derive them; without this a reader of the spec
+/// would not learn that the service documents itself.
+fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
+    use utoipa::openapi::path::{HttpMethod, OperationBuilder};
+    use utoipa::openapi::schema::{ObjectBuilder, Type};
+    use utoipa::openapi::{Content, ResponseBuilder};
+    let get = |id: &str, summary: &str, content_type: &str, description: &str, schema: Type| {
+        OperationBuilder::new()
+            .tag("operations")
+            .operation_id(Some(id))
+            .summary(Some(summary))
+            .response(
+                "200",
+                ResponseBuilder::new().description(description).content(
+                    content_type,
+                    Content::new(Some(ObjectBuilder::new().schema_type(schema))),
+                ),
+            )
+            .build()
+    };
+    spec.paths.add_path_operation(
+        "/openapi.json",
+        vec![HttpMethod::Get],
+        get(
+            "openapi_json",
+            "This OpenAPI 3.1 document (also `ilqr-service openapi`)",
+            "application/json",
+            "The OpenAPI document",
+            Type::Object,
+        ),
+    );
+    spec.paths.add_path_operation(
+        "/docs/",
+        vec![HttpMethod::Get],
+        get(
+            "docs",
+            "Swagger UI for this document, served from the binary (no internet needed); \
+             `/docs` redirects here",
+            "text/html",
+            "The Swagger UI page",
+            Type::String,
+        ),
+    );
+    spec
 }
 
 /// The OpenAPI document as pretty JSON, as committed in `openapi/openapi.json`.
@@ -73,6 +120,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
     let body_limit = state.config.max_body_bytes;
     let gzip_level = state.config.gzip_level;
     let (router, spec) = api_router().with_state(state).split_for_parts();
+    let spec = with_docs_routes(spec);
     let router = router
         .merge(
             axum::Router::from(SwaggerUi::new("/docs").url("/openapi.json", spec))
