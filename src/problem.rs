@@ -672,8 +672,26 @@ pub enum ParseError {
 /// Two stages, so the two kinds of failure stay apart: the bytes must be one
 /// JSON value (else [`ParseError::Syntax`]; this includes numbers beyond the
 /// range of f64 such as `1e999`), and that value must be an object of the
-/// right shape (else [`ParseError::Shape`]).
+/// right shape (else [`ParseError::Shape`]). A key given twice in one object
+/// is a shape error at its pointer: JSON leaves its meaning open, and a
+/// `serde_json::Value` would silently keep the last.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
+    let mut first_repeat = None;
+    let mut path = String::new();
+    serde::de::DeserializeSeed::deserialize(
+        RepeatScan {
+            path: &mut path,
+            first: &mut first_repeat,
+        },
+        &mut serde_json::Deserializer::from_slice(bytes),
+    )
+    .map_err(|e| ParseError::Syntax(e.to_string()))?;
+    if let Some(pointer) = first_repeat {
+        return Err(ParseError::Shape(FieldError {
+            pointer,
+            detail: "this key appears more than once in its object; give it once".into(),
+        }));
+    }
     let value: serde_json::Value =
         serde_json::from_slice(bytes).map_err(|e| ParseError::Syntax(e.to_string()))?;
     // Through `ObjectOnly` like every nested struct: serde alone would take
@@ -696,6 +714,90 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         }
         ParseError::Shape(FieldError { pointer, detail })
     })
+}
+
+/// Walks a JSON document without building it and records the pointer of
+/// the first key that repeats within its object. It reads to the end
+/// whatever it finds, so a syntax error anywhere still wins (400 over 422).
+/// Nesting is bounded by serde_json's recursion limit (128), like any parse.
+struct RepeatScan<'a> {
+    /// The pointer of the value being read.
+    path: &'a mut String,
+    first: &'a mut Option<String>,
+}
+
+impl<'de> serde::de::DeserializeSeed<'de> for RepeatScan<'_> {
+    type Value = ();
+
+    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+        d.deserialize_any(self)
+    }
+}
+
+impl<'de> Visitor<'de> for RepeatScan<'_> {
+    type Value = ();
+
+    fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+        f.write_str("any JSON value")
+    }
+
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
+        let mut seen = std::collections::HashSet::new();
+        while let Some(key) = map.next_key::<String>()? {
+            let len = self.path.len();
+            self.path.push('/');
+            self.path.push_str(&escape_token(&key));
+            if !seen.insert(key) && self.first.is_none() {
+                *self.first = Some(self.path.clone());
+            }
+            map.next_value_seed(RepeatScan {
+                path: self.path,
+                first: self.first,
+            })?;
+            self.path.truncate(len);
+        }
+        Ok(())
+    }
+
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
+        let mut index = 0usize;
+        loop {
+            let len = self.path.len();
+            // Into the buffer, not a new String per element.
+            let _ = fmt::Write::write_fmt(self.path, format_args!("/{index}"));
+            let more = seq
+                .next_element_seed(RepeatScan {
+                    path: self.path,
+                    first: self.first,
+                })?
+                .is_some();
+            self.path.truncate(len);
+            if !more {
+                return Ok(());
+            }
+            index += 1;
+        }
+    }
+
+    // Scalars carry no keys.
+    fn visit_bool<E>(self, _: bool) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_i64<E>(self, _: i64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_u64<E>(self, _: u64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_f64<E>(self, _: f64) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_str<E>(self, _: &str) -> Result<(), E> {
+        Ok(())
+    }
+    fn visit_unit<E>(self) -> Result<(), E> {
+        Ok(())
+    }
 }
 
 /// RFC 6901 escaping of one reference token.

@@ -348,6 +348,15 @@ async fn every_error_class_is_a_problem_document() {
     )
     .await;
     assert_eq!(p["errors"][0]["pointer"], "/dt");
+    // A key given twice is ambiguous, not last-wins.
+    let p = problem_of(
+        raw("{\"dt\": 0.05, \"dt\": 10}", Some("application/json"))
+            .await
+            .unwrap(),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/dt");
 
     let p = problem_of(
         s.post(&json!({"weights": {"state": [1, 2]}})).await,

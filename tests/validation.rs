@@ -266,6 +266,46 @@ fn malformed_json_is_a_syntax_error() {
     }
 }
 
+/// A key given twice in one object is ambiguous (JSON leaves it open, and
+/// serde_json's `Value` would keep the last silently): it is rejected at the
+/// repeated key's pointer, at any depth, and only within one object.
+#[test]
+fn a_key_given_twice_in_one_object_is_rejected_at_its_pointer() {
+    let repeated = |body: &str| match parse(body.as_bytes()) {
+        Err(ParseError::Shape(f)) => {
+            assert!(f.detail.contains("more than once"), "{body}: {}", f.detail);
+            f.pointer
+        }
+        other => panic!("{body}: {other:?}"),
+    };
+    assert_eq!(repeated(r#"{"dt": 0.05, "dt": 10}"#), "/dt");
+    assert_eq!(
+        repeated(
+            r#"{"weights": {"state": [1,1,1,1,1,1], "control": [1,1], "state": [2,2,2,2,2,2]}}"#
+        ),
+        "/weights/state"
+    );
+    assert_eq!(
+        repeated(
+            r#"{"obstacles": [{"center": [1,2], "weight": 1}, {"center": [1,2], "weight": 1, "weight": 2}]}"#
+        ),
+        "/obstacles/1/weight"
+    );
+    // Pointer escaping (RFC 6901), and the first repeat is the one named.
+    assert_eq!(
+        repeated(r#"{"a/b": 1, "a~b": 1, "a/b": 2, "dt": 1, "dt": 2}"#),
+        "/a~1b"
+    );
+    // The same key in two different objects is no repeat.
+    let ok = r#"{"obstacles": [{"center": [1,2], "weight": 1}, {"center": [3,4], "weight": 1}]}"#;
+    assert!(parse(ok.as_bytes()).is_ok());
+    // Broken JSON after a repeat is still a syntax error (400 over 422).
+    assert!(matches!(
+        parse(br#"{"dt": 1, "dt": 2, "horizon": }"#),
+        Err(ParseError::Syntax(_))
+    ));
+}
+
 #[test]
 fn magnitudes_beyond_the_documented_ranges_are_rejected() {
     for (doc, pointer) in [
