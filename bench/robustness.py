@@ -38,6 +38,17 @@ it) instead of Tassa's (lower after every accepted step). Converged 252,
 max_iterations 43, no_progress 5; without the raise, 253 / 43 / 4. Both
 worse than 259 / 39 / 2, rejected; the seed was unchanged either way.
 
+Also measured the same day, after a review found a false convergence
+outside this set (a start 0.1 mm from an obstacle centre with q = 1e6: the
+first pass raised mu to 8e15, a full step there gained 0.06 on a cost of
+1e8, and the solve was called converged after one iteration, 9 m from the
+goal): trusting the full-step test only at mu <= mu_min gave converged 243,
+max_iterations 46, no_progress 11 (16 genuine optima lost, at costs within
+1.5e-8 of before, 127 the only one lower, by 1.9e-6); trusting it at
+mu <= 1e6 (Options::mu_converged_max) left all 300 statuses and costs as
+they were (259 / 39 / 2, the same 11 above) and converges the reviewer's
+case in 45 iterations, 6 mm from the goal.
+
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
 (23a4aa3) converged 259, max_iterations 39, no_progress 2.

@@ -443,3 +443,73 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
     assert_eq!(s.cost, 1e5, "{s:?}");
 }
+
+/// A start 0.1 mm from the centre of a steep obstacle (q = 1e6): `Q_uu` is
+/// so indefinite that the first pass raises μ to about 1e16, where a full
+/// step moves the thrusts by 1e-13 and gains almost nothing. That gain used
+/// to count as convergence: `Converged` after one iteration, the cost
+/// unchanged and the quadrotor 9 m from the goal. Such a step is no
+/// evidence of a minimum (`mu_converged_max`); the solve goes on and
+/// reaches the goal.
+#[test]
+fn a_step_damped_by_a_huge_mu_is_not_called_converged() {
+    let mut problem = seed_problem(100, 0.05);
+    problem.cost = tracking(goal(), 1.0, 0.1, 50000.0).with_stage(ilqr::ExpObstacle {
+        center: Vector2::new(5.0, 1e-4),
+        weight: 1e6,
+        position: (0, 1),
+    });
+    let (solver, s) = solve_problem(&problem, &Options::default());
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert!(s.cost < 0.05 * s.initial_cost, "{s:?}");
+    let end = solver.states()[100];
+    assert!((end - goal()).norm() < 0.01, "ends at {end:?}");
+    // No accepted step under μ > mu_converged_max ended the solve.
+    let last = solver.trace().last().expect("a trace row");
+    assert!(
+        last.regularization <= Options::default().mu_converged_max,
+        "{last:?}"
+    );
+}
+
+/// Convergence is tested before the iteration cap: a solve that converges
+/// in exactly `max_iterations` iterations is `Converged`, and so is an
+/// optimal warm start given `max_iterations = 0`. They used to be
+/// `MaxIterations`, which tells an MPC caller with a tight cap that the
+/// solve ran out when it had not.
+#[test]
+fn a_solve_that_converges_at_the_iteration_cap_is_converged() {
+    let (free_solver, free) = solve_seed();
+    assert_eq!(free.status, Status::Converged);
+    let capped = |max_iterations| {
+        solve_with(&Options {
+            max_iterations,
+            ..Options::default()
+        })
+        .1
+    };
+    let exact = capped(free.iterations);
+    assert_eq!(
+        (exact.status, exact.iterations, exact.cost),
+        (Status::Converged, free.iterations, free.cost)
+    );
+    assert_eq!(capped(free.iterations - 1).status, Status::MaxIterations);
+
+    let problem = seed_problem(100, 0.05);
+    let mut warm = Solver::new(100);
+    let s = warm
+        .solve(
+            &problem,
+            free_solver.controls(),
+            &Options {
+                max_iterations: 0,
+                ..Options::default()
+            },
+            &AtomicBool::new(false),
+        )
+        .unwrap();
+    assert_eq!(
+        (s.status, s.iterations, s.cost),
+        (Status::Converged, 0, free.cost)
+    );
+}
