@@ -703,6 +703,13 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         if let Some(head) = detail.strip_suffix("expected f64") {
             detail = format!("{head}expected a number");
         }
+        // A too-long fixed-size array: serde_json's `Value` does not say how
+        // long it should be (a too-short one does: "an array of length 6").
+        if let Some(head) = detail.strip_suffix("expected fewer elements in array")
+            && let Some(len) = fixed_length(&pointer)
+        {
+            detail = format!("{head}expected an array of length {len}");
+        }
         // serde places a missing field at its parent object; point at the
         // field itself, which is what the caller has to add.
         if let Some(field) = detail
@@ -797,6 +804,18 @@ impl<'de> Visitor<'de> for RepeatScan<'_> {
     }
     fn visit_unit<E>(self) -> Result<(), E> {
         Ok(())
+    }
+}
+
+/// The length of the fixed-size array at `pointer`, if it is one.
+fn fixed_length(pointer: &str) -> Option<usize> {
+    let tokens: Vec<&str> = pointer.split('/').skip(1).collect();
+    let index = |t: &str| t.parse::<usize>().is_ok();
+    match tokens.as_slice() {
+        ["initial_state" | "goal_state"] | ["weights", "state" | "terminal"] => Some(6),
+        ["weights", "control"] | ["initial_controls", _] => Some(2),
+        ["obstacles", i, "center"] if index(i) => Some(2),
+        _ => None,
     }
 }
 

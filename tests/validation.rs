@@ -184,6 +184,46 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         );
     }
     assert!(errors(&json!({"horizon": 3.0, "solver": {"time_limit_ms": null}})).is_empty());
+    // Fixed-size arrays say the length they need, too long or too short
+    // (too long used to say only "expected fewer elements").
+    for (doc, pointer, detail) in [
+        (
+            json!({"goal_state": [1, 2, 3, 4, 5, 6, 7]}),
+            "/goal_state",
+            "invalid length 7, expected an array of length 6",
+        ),
+        (
+            json!({"initial_state": [1]}),
+            "/initial_state",
+            "invalid length 1, expected an array of length 6",
+        ),
+        (
+            json!({"weights": {"terminal": [1, 1, 1, 1, 1, 1, 1]}}),
+            "/weights/terminal",
+            "invalid length 7, expected an array of length 6",
+        ),
+        (
+            json!({"weights": {"control": [1, 2, 3]}}),
+            "/weights/control",
+            "invalid length 3, expected an array of length 2",
+        ),
+        (
+            json!({"obstacles": [{"center": [1, 2, 3], "weight": 1}]}),
+            "/obstacles/0/center",
+            "invalid length 3, expected an array of length 2",
+        ),
+        (
+            json!({"horizon": 2, "initial_controls": [[1, 1], [1, 1, 1]]}),
+            "/initial_controls/1",
+            "invalid length 3, expected an array of length 2",
+        ),
+    ] {
+        assert_eq!(
+            shape_error(doc.clone()),
+            (pointer.into(), detail.into()),
+            "{doc}"
+        );
+    }
     // Names are strings only: serde alone also took `{"euler": null}`.
     for doc in [
         json!({"integrator": {"euler": null}}),
