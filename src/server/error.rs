@@ -145,7 +145,16 @@ impl ApiError {
             Self::Validation(errors) => {
                 let detail = match errors.as_slice() {
                     [one] => format!("{}: {}", label(&one.pointer), one.detail),
-                    many => format!("{} invalid fields; see `errors`", many.len()),
+                    // Past the report cap the last entry (pointer "") is
+                    // a count of the rest, not a field.
+                    many => match many.split_last() {
+                        Some((rest, listed)) if rest.pointer.is_empty() => format!(
+                            "{} invalid values listed in `errors`; {}",
+                            listed.len(),
+                            rest.detail
+                        ),
+                        _ => format!("{} invalid fields; see `errors`", many.len()),
+                    },
                 };
                 (detail, errors.clone(), None)
             }
