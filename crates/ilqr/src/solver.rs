@@ -492,9 +492,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             {
                 bw = unregularised;
                 mu = 0.0;
-            }
-            if negligible(&bw) && mu <= options.mu_min {
-                break Status::Converged;
+                if negligible(&bw) {
+                    break Status::Converged;
+                }
             }
             if iterations >= options.max_iterations {
                 break Status::MaxIterations;

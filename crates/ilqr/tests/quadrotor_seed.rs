@@ -13,10 +13,14 @@ use nalgebra::{SVector, Vector2};
 
 /// Solve `problem` from hover with `options`.
 fn solve_problem(problem: &Seed, options: &Options) -> (Solver<6, 2>, Summary) {
-    let n = problem.horizon;
-    let mut solver = Solver::new(n);
+    solve_from(problem, &hover(problem.horizon), options)
+}
+
+/// Solve `problem` from the initial controls `us` with `options`.
+fn solve_from(problem: &Seed, us: &[Vector2<f64>], options: &Options) -> (Solver<6, 2>, Summary) {
+    let mut solver = Solver::new(problem.horizon);
     let summary = solver
-        .solve(problem, &hover(n), options, &AtomicBool::new(false))
+        .solve(problem, us, options, &AtomicBool::new(false))
         .expect("the problem is valid");
     (solver, summary)
 }
@@ -431,15 +435,7 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
         weight: 1000.0,
         position: (0, 1),
     });
-    let mut solver = Solver::new(100);
-    let s = solver
-        .solve(
-            &problem,
-            &vec![Vector2::zeros(); 100],
-            &Options::default(),
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+    let (_, s) = solve_from(&problem, &[Vector2::zeros(); 100], &Options::default());
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
     assert_eq!(s.cost, 1e5, "{s:?}");
 }
@@ -495,19 +491,14 @@ fn a_solve_that_converges_at_the_iteration_cap_is_converged() {
     );
     assert_eq!(capped(free.iterations - 1).status, Status::MaxIterations);
 
-    let problem = seed_problem(100, 0.05);
-    let mut warm = Solver::new(100);
-    let s = warm
-        .solve(
-            &problem,
-            free_solver.controls(),
-            &Options {
-                max_iterations: 0,
-                ..Options::default()
-            },
-            &AtomicBool::new(false),
-        )
-        .unwrap();
+    let (_, s) = solve_from(
+        &seed_problem(100, 0.05),
+        free_solver.controls(),
+        &Options {
+            max_iterations: 0,
+            ..Options::default()
+        },
+    );
     assert_eq!(
         (s.status, s.iterations, s.cost),
         (Status::Converged, 0, free.cost)
