@@ -678,13 +678,15 @@ pub enum ParseError {
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     let mut first_repeat = None;
     let mut path = String::new();
-    serde::de::DeserializeSeed::deserialize(
-        RepeatScan {
+    let mut json = serde_json::Deserializer::from_slice(bytes);
+    let value = serde::de::DeserializeSeed::deserialize(
+        ValueNoting {
             path: &mut path,
-            first: &mut first_repeat,
+            first_repeat: &mut first_repeat,
         },
-        &mut serde_json::Deserializer::from_slice(bytes),
+        &mut json,
     )
+    .and_then(|value| json.end().map(|()| value))
     .map_err(|e| ParseError::Syntax(e.to_string()))?;
     if let Some(pointer) = first_repeat {
         return Err(ParseError::Shape(FieldError {
@@ -692,8 +694,6 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
             detail: "this key appears more than once in its object; give it once".into(),
         }));
     }
-    let value: serde_json::Value =
-        serde_json::from_slice(bytes).map_err(|e| ParseError::Syntax(e.to_string()))?;
     // Through `ObjectOnly` like every nested struct: serde alone would take
     // an array for the document too.
     serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(value)).map_err(|e| {
@@ -723,87 +723,89 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     })
 }
 
-/// Walks a JSON document without building it and records the pointer of
-/// the first key that repeats within its object. It reads to the end
-/// whatever it finds, so a syntax error anywhere still wins (400 over 422).
-/// Nesting is bounded by serde_json's recursion limit (128), like any parse.
-struct RepeatScan<'a> {
+/// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
+/// and notes the pointer of the first key that repeats within its object
+/// (`Value` alone keeps the last silently). It reads on after a repeat, so a
+/// syntax error anywhere still wins (400 over 422). Nesting is bounded by
+/// serde_json's recursion limit (128), like any parse.
+struct ValueNoting<'a> {
     /// The pointer of the value being read.
     path: &'a mut String,
-    first: &'a mut Option<String>,
+    first_repeat: &'a mut Option<String>,
 }
 
-impl<'de> serde::de::DeserializeSeed<'de> for RepeatScan<'_> {
-    type Value = ();
+impl<'de> serde::de::DeserializeSeed<'de> for ValueNoting<'_> {
+    type Value = serde_json::Value;
 
-    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<(), D::Error> {
+    fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<serde_json::Value, D::Error> {
         d.deserialize_any(self)
     }
 }
 
-impl<'de> Visitor<'de> for RepeatScan<'_> {
-    type Value = ();
+impl<'de> Visitor<'de> for ValueNoting<'_> {
+    type Value = serde_json::Value;
 
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
         f.write_str("any JSON value")
     }
 
-    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<(), A::Error> {
-        let mut seen = std::collections::HashSet::new();
+    fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        let mut object = serde_json::Map::new();
         while let Some(key) = map.next_key::<String>()? {
             let len = self.path.len();
             self.path.push('/');
             self.path.push_str(&escape_token(&key));
-            if !seen.insert(key) && self.first.is_none() {
-                *self.first = Some(self.path.clone());
-            }
-            map.next_value_seed(RepeatScan {
+            let value = map.next_value_seed(ValueNoting {
                 path: self.path,
-                first: self.first,
+                first_repeat: self.first_repeat,
             })?;
+            if object.insert(key, value).is_some() && self.first_repeat.is_none() {
+                *self.first_repeat = Some(self.path.clone());
+            }
             self.path.truncate(len);
         }
-        Ok(())
+        Ok(serde_json::Value::Object(object))
     }
 
-    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<(), A::Error> {
-        let mut index = 0usize;
+    fn visit_seq<A: serde::de::SeqAccess<'de>>(self, mut seq: A) -> Result<Self::Value, A::Error> {
+        let mut items = Vec::with_capacity(seq.size_hint().unwrap_or(0));
         loop {
             let len = self.path.len();
             // Into the buffer, not a new String per element.
-            let _ = fmt::Write::write_fmt(self.path, format_args!("/{index}"));
-            let more = seq
-                .next_element_seed(RepeatScan {
-                    path: self.path,
-                    first: self.first,
-                })?
-                .is_some();
+            let _ = fmt::Write::write_fmt(self.path, format_args!("/{}", items.len()));
+            let item = seq.next_element_seed(ValueNoting {
+                path: self.path,
+                first_repeat: self.first_repeat,
+            })?;
             self.path.truncate(len);
-            if !more {
-                return Ok(());
+            match item {
+                Some(item) => items.push(item),
+                None => return Ok(serde_json::Value::Array(items)),
             }
-            index += 1;
         }
     }
 
-    // Scalars carry no keys.
-    fn visit_bool<E>(self, _: bool) -> Result<(), E> {
-        Ok(())
+    fn visit_bool<E>(self, v: bool) -> Result<Self::Value, E> {
+        Ok(v.into())
     }
-    fn visit_i64<E>(self, _: i64) -> Result<(), E> {
-        Ok(())
+    fn visit_i64<E>(self, v: i64) -> Result<Self::Value, E> {
+        Ok(v.into())
     }
-    fn visit_u64<E>(self, _: u64) -> Result<(), E> {
-        Ok(())
+    fn visit_u64<E>(self, v: u64) -> Result<Self::Value, E> {
+        Ok(v.into())
     }
-    fn visit_f64<E>(self, _: f64) -> Result<(), E> {
-        Ok(())
+    fn visit_f64<E>(self, v: f64) -> Result<Self::Value, E> {
+        // As serde_json's own `Value`: the parser yields only finite numbers.
+        Ok(v.into())
     }
-    fn visit_str<E>(self, _: &str) -> Result<(), E> {
-        Ok(())
+    fn visit_str<E>(self, v: &str) -> Result<Self::Value, E> {
+        Ok(v.into())
     }
-    fn visit_unit<E>(self) -> Result<(), E> {
-        Ok(())
+    fn visit_string<E>(self, v: String) -> Result<Self::Value, E> {
+        Ok(v.into())
+    }
+    fn visit_unit<E>(self) -> Result<Self::Value, E> {
+        Ok(serde_json::Value::Null)
     }
 }
 
