@@ -157,10 +157,20 @@ fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, Vec<String>> {
         ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
         ParseError::Shape(f) => vec![format!("{}: {}", pointer_label(&f.pointer), f.detail)],
     })?;
-    spec.validate(&Limits::default()).map_err(|errs| {
-        errs.into_iter()
+    spec.validate(&Limits::default()).map_err(|invalid| {
+        let mut lines: Vec<String> = invalid
+            .errors
+            .iter()
             .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
-            .collect::<Vec<_>>()
+            .collect();
+        if invalid.unlisted > 0 {
+            lines.push(format!(
+                "{} more invalid values not listed (only the first {} are)",
+                invalid.unlisted,
+                invalid.errors.len()
+            ));
+        }
+        lines
     })?;
     Ok(spec)
 }

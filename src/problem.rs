@@ -305,8 +305,9 @@ impl ProblemSpec {
             .or(default)
     }
 
-    /// Check every value; returns all the problems found, or nothing.
-    pub fn validate(&self, limits: &Limits) -> Result<(), Vec<FieldError>> {
+    /// Check every value; returns the problems found (the first
+    /// [`MAX_REPORTED_ERRORS`] of them, and a count of the rest), or nothing.
+    pub fn validate(&self, limits: &Limits) -> Result<(), Invalid> {
         let mut v = Checker::default();
         let m = &self.model;
         let (lo, hi) = (MIN_PARAMETER, MAX_PARAMETER);
@@ -418,27 +419,47 @@ impl ProblemSpec {
     }
 }
 
-/// At most this many field errors are reported; one more entry (pointer
-/// `""`, the whole document) counts the rest. A 4 MiB body of bad control
-/// rows would otherwise produce ~760 000 errors, an 80 MB answer built on
-/// the async runtime.
+/// At most this many field errors are listed; [`Invalid::unlisted`] counts
+/// the rest. A 4 MiB body of bad control rows would otherwise produce
+/// ~760 000 errors, an 80 MB answer built on the async runtime.
 pub const MAX_REPORTED_ERRORS: usize = 100;
+
+/// Why a problem was rejected: its invalid values, listed up to a cap.
+///
+/// The count of the rest is kept apart from the list (it used to be one
+/// more entry with pointer `""`), so that every entry of `errors` names a
+/// field a client can point at.
+#[derive(Debug, Clone, PartialEq, Eq, Default)]
+pub struct Invalid {
+    /// The first [`MAX_REPORTED_ERRORS`] invalid values, in document order.
+    pub errors: Vec<FieldError>,
+    /// How many more invalid values were found than `errors` lists.
+    pub unlisted: usize,
+}
+
+impl From<FieldError> for Invalid {
+    fn from(error: FieldError) -> Self {
+        Self {
+            errors: vec![error],
+            unlisted: 0,
+        }
+    }
+}
 
 #[derive(Default)]
 struct Checker {
-    errors: Vec<FieldError>,
-    unreported: usize,
+    found: Invalid,
 }
 
 impl Checker {
     fn push(&mut self, pointer: &str, detail: String) {
-        if self.errors.len() < MAX_REPORTED_ERRORS {
-            self.errors.push(FieldError {
+        if self.found.errors.len() < MAX_REPORTED_ERRORS {
+            self.found.errors.push(FieldError {
                 pointer: pointer.to_owned(),
                 detail,
             });
         } else {
-            self.unreported += 1;
+            self.found.unlisted += 1;
         }
     }
 
@@ -471,20 +492,11 @@ impl Checker {
         }
     }
 
-    fn finish(mut self) -> Result<(), Vec<FieldError>> {
-        if self.unreported > 0 {
-            self.errors.push(FieldError {
-                pointer: String::new(),
-                detail: format!(
-                    "{} more invalid values not listed (only the first {MAX_REPORTED_ERRORS} are)",
-                    self.unreported
-                ),
-            });
-        }
-        if self.errors.is_empty() {
+    fn finish(self) -> Result<(), Invalid> {
+        if self.found.errors.is_empty() {
             Ok(())
         } else {
-            Err(self.errors)
+            Err(self.found)
         }
     }
 }

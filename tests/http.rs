@@ -883,7 +883,7 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
     )
     .await;
     let errors = p["errors"].as_array().unwrap();
-    assert_eq!(errors.len(), 101);
+    assert_eq!(errors.len(), 100);
     assert_eq!(errors[0]["pointer"], "/initial_controls/0/0");
     assert_eq!(
         errors[0]["detail"],
@@ -893,16 +893,26 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
         errors[1]["detail"],
         "must be a number from -1000000 to 1000000 (N), got 1e300"
     );
-    assert_eq!(errors[100]["pointer"], "");
-    assert_eq!(
-        errors[100]["detail"],
-        "9900 more invalid values not listed (only the first 100 are)"
-    );
-    // The count of fields is not inflated by that summary entry.
+    // Every entry names a field; the rest are counted apart (they used to
+    // be one more entry, pointer "", which looked like a whole-document error).
+    assert!(errors.iter().all(|e| e["pointer"] != ""), "{errors:?}");
+    assert_eq!(p["unlisted_errors"], 9900);
     assert_eq!(
         p["detail"],
-        "100 invalid values listed in `errors`; 9900 more invalid values not listed (only the first 100 are)"
+        "10000 invalid values; `errors` lists the first 100 and `unlisted_errors` counts the other 9900"
     );
+
+    // At the cap exactly, everything is listed and nothing is counted apart.
+    let rows: Vec<Value> = (0..50).map(|_| json!([1e7, 1e300])).collect();
+    let p = problem_of(
+        s.post(&json!({"horizon": 50, "initial_controls": rows}))
+            .await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"].as_array().unwrap().len(), 100);
+    assert!(p.get("unlisted_errors").is_none(), "{p}");
+    assert_eq!(p["detail"], "100 invalid fields; see `errors`");
 }
 
 /// `Content-Encoding: IDENTITY` is identity (codings are case-insensitive),

@@ -176,4 +176,19 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
         String::from_utf8(bad.stderr).unwrap(),
         "error: /dt: must be a positive number of seconds, at most 10, got 1e300\n"
     );
+
+    // Past the 100 listed errors, one line counts the rest.
+    let rows = vec!["[1e7, 1e7]"; 5000].join(",");
+    let flood = run(&format!(
+        r#"{{"horizon": 5000, "initial_controls": [{rows}]}}"#
+    ));
+    assert_eq!(flood.status.code(), Some(2));
+    let stderr = String::from_utf8(flood.stderr).unwrap();
+    let lines: Vec<&str> = stderr.lines().collect();
+    assert_eq!(lines.len(), 101, "{stderr}");
+    assert!(lines[0].contains("/initial_controls/0/0"), "{stderr}");
+    assert_eq!(
+        lines[100],
+        "error: 9900 more invalid values not listed (only the first 100 are)"
+    );
 }

@@ -13,7 +13,7 @@ fn errors(doc: &Value) -> Vec<String> {
         Err(ParseError::Syntax(msg)) => panic!("{doc} is JSON, got syntax error {msg}"),
         Ok(spec) => match spec.validate(&Limits::default()) {
             Ok(()) => vec![],
-            Err(errs) => errs.into_iter().map(|e| e.pointer).collect(),
+            Err(invalid) => invalid.errors.into_iter().map(|e| e.pointer).collect(),
         },
     }
 }
@@ -98,6 +98,7 @@ fn horizon_bounds_are_enforced() {
     let errs: Vec<_> = spec
         .validate(&tight)
         .unwrap_err()
+        .errors
         .into_iter()
         .map(|e| e.pointer)
         .collect();

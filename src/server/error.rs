@@ -11,7 +11,7 @@ use axum::response::{IntoResponse, Response};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::problem::FieldError;
+use crate::problem::{FieldError, Invalid};
 
 /// Media type of problem documents.
 pub const PROBLEM_JSON: &str = "application/problem+json";
@@ -28,9 +28,13 @@ pub struct Problem {
     pub status: u16,
     /// What went wrong in this request.
     pub detail: String,
-    /// For validation errors: every offending field.
+    /// For validation errors: every offending field, up to the first 100.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<FieldError>,
+    /// For validation errors past that cap: how many more invalid values
+    /// were found than `errors` lists. Absent when `errors` lists them all.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub unlisted_errors: Option<u64>,
     /// Seconds to wait before retrying (overload only; also sent as the
     /// `Retry-After` header).
     #[serde(default, skip_serializing_if = "Option::is_none")]
@@ -43,7 +47,7 @@ pub enum ApiError {
     /// The body is not JSON (400).
     MalformedJson(String),
     /// The body is JSON but not a valid problem (422).
-    Validation(Vec<FieldError>),
+    Validation(Invalid),
     /// `Content-Type` is missing or not JSON (415).
     UnsupportedMediaType,
     /// The body exceeds the configured limit (413).
@@ -142,21 +146,18 @@ impl ApiError {
             Self::MalformedJson(msg) => {
                 (format!("the body is not valid JSON: {msg}"), vec![], None)
             }
-            Self::Validation(errors) => {
-                let detail = match errors.as_slice() {
-                    [one] => format!("{}: {}", label(&one.pointer), one.detail),
-                    // Past the report cap the last entry (pointer "") is
-                    // a count of the rest, not a field.
-                    many => match many.split_last() {
-                        Some((rest, listed)) if rest.pointer.is_empty() => format!(
-                            "{} invalid values listed in `errors`; {}",
-                            listed.len(),
-                            rest.detail
-                        ),
-                        _ => format!("{} invalid fields; see `errors`", many.len()),
-                    },
+            Self::Validation(invalid) => {
+                let detail = match (invalid.errors.as_slice(), invalid.unlisted) {
+                    ([one], 0) => format!("{}: {}", label(&one.pointer), one.detail),
+                    (many, 0) => format!("{} invalid fields; see `errors`", many.len()),
+                    (listed, unlisted) => format!(
+                        "{} invalid values; `errors` lists the first {} and \
+                         `unlisted_errors` counts the other {unlisted}",
+                        listed.len() + unlisted,
+                        listed.len(),
+                    ),
                 };
-                (detail, errors.clone(), None)
+                (detail, invalid.errors.clone(), None)
             }
             Self::UnsupportedMediaType => (
                 "send the problem as uncompressed JSON with `Content-Type: application/json`"
@@ -200,12 +201,17 @@ impl ApiError {
                 None,
             ),
         };
+        let unlisted_errors = match self {
+            Self::Validation(invalid) if invalid.unlisted > 0 => Some(invalid.unlisted as u64),
+            _ => None,
+        };
         Problem {
             kind: format!("urn:ilqr-service:{slug}"),
             title: title.into(),
             status: status.as_u16(),
             detail,
             errors,
+            unlisted_errors,
             retry_after,
         }
     }

@@ -227,7 +227,7 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     match parse(&bytes) {
         Ok(spec) => Ok(spec),
         Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
-        Err(ParseError::Shape(f)) => Err(ApiError::Validation(vec![f])),
+        Err(ParseError::Shape(f)) => Err(ApiError::Validation(f.into())),
     }
 }
 
@@ -360,7 +360,7 @@ async fn solve(
             tracing::error!(error = %e, "result serialisation failed");
             Err(reject(ApiError::Internal))
         }
-        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(vec![field]))),
+        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(field.into()))),
         Err(panic) => {
             tracing::error!(panic = %panic.0, "solver panicked");
             Err(reject(ApiError::Internal))
