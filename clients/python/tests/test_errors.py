@@ -18,6 +18,7 @@ from ilqr_client import (
     OverloadedError,
     PayloadTooLargeError,
     Problem,
+    RequestTimeoutError,
     ServerError,
     ShuttingDownError,
     UnexpectedResponseError,
@@ -55,6 +56,22 @@ def test_validation_errors(client: Client, problem: Any, pointers: List[str]) ->
     assert all(isinstance(e, FieldError) and e.detail for e in error.errors)
     assert error.request_id
     assert pointers[0] in str(error)
+
+
+def test_a_flood_of_invalid_values_lists_100_and_counts_the_rest(client: Client) -> None:
+    rows = [[1e7, 1e7]] * 5000  # finite, so the client sends them; the service refuses
+    with pytest.raises(ValidationError) as info:
+        client.solve({"horizon": 5000, "initial_controls": rows})
+    error = info.value
+    assert len(error.errors) == 100 and error.unlisted == 9900
+    # Every listed entry names a field: the count is not an entry of its own.
+    assert error.pointers[:2] == ["/initial_controls/0/0", "/initial_controls/0/1"]
+    assert "" not in error.pointers
+    assert "10000 invalid values" in str(error)
+
+    with pytest.raises(ValidationError) as info:
+        client.solve({"dt": -1})
+    assert info.value.unlisted == 0
 
 
 def test_validation_error_carries_the_request_id(client: Client) -> None:
@@ -183,6 +200,14 @@ def test_problem_documents_map_by_type() -> None:
         '"status":400,"detail":"the body could not be read: ..."}'
     ))
     assert type(unreadable) is MalformedRequestError and unreadable.slug == "unreadable-body"
+
+    slow = error_from_response(fake_response(
+        408, '{"type":"urn:ilqr-service:request-timeout","title":"Request body too slow",'
+        '"status":408,"detail":"the body did not arrive within 30 s"}'
+    ))
+    assert type(slow) is RequestTimeoutError and slow.slug == "request-timeout"
+    # Also by status alone, from a proxy that sends its own page.
+    assert type(error_from_response(fake_response(408, "timeout", "text/plain"))) is RequestTimeoutError
 
     unknown = error_from_response(fake_response(
         400, '{"type":"urn:ilqr-service:something-new","title":"New","status":400,"detail":"d"}'

@@ -31,6 +31,7 @@ __all__ = [
     "ValidationError",
     "UnsupportedMediaTypeError",
     "PayloadTooLargeError",
+    "RequestTimeoutError",
     "NotFoundError",
     "MethodNotAllowedError",
     "OverloadedError",
@@ -158,6 +159,18 @@ class ValidationError(ApiError):
         """The JSON pointers of the invalid fields, e.g. ``["/dt", "/weights/state/2"]``."""
         return [error.pointer for error in self.errors]
 
+    @property
+    def unlisted(self) -> int:
+        """How many more invalid values the service found than :attr:`errors` lists.
+
+        The service lists the first 100 and counts the rest in the problem
+        document's ``unlisted_errors``; 0 when everything is listed.
+        """
+        raw = (self.body or {}).get("unlisted_errors")
+        if isinstance(raw, int) and not isinstance(raw, bool) and raw > 0:
+            return raw
+        return 0
+
 
 class UnsupportedMediaTypeError(ApiError):
     """415 ``unsupported-media-type``: the request's Content-Type was not JSON."""
@@ -165,6 +178,13 @@ class UnsupportedMediaTypeError(ApiError):
 
 class PayloadTooLargeError(ApiError):
     """413 ``payload-too-large``: the body exceeded the service's size limit."""
+
+
+class RequestTimeoutError(ApiError):
+    """408 ``request-timeout``: the body did not arrive within the service's
+    read timeout (``--read-timeout-secs``, default 30 s). Not retried: a
+    body that slow usually means a stalled upload, not a busy service.
+    """
 
 
 class NotFoundError(ApiError):
@@ -205,6 +225,7 @@ _BY_SLUG: Dict[str, Type[ApiError]] = {
     "validation": ValidationError,
     "unsupported-media-type": UnsupportedMediaTypeError,
     "payload-too-large": PayloadTooLargeError,
+    "request-timeout": RequestTimeoutError,
     "not-found": NotFoundError,
     "method-not-allowed": MethodNotAllowedError,
     "overloaded": OverloadedError,
@@ -216,6 +237,7 @@ _BY_STATUS: Dict[int, Type[ApiError]] = {
     400: MalformedRequestError,
     404: NotFoundError,
     405: MethodNotAllowedError,
+    408: RequestTimeoutError,
     413: PayloadTooLargeError,
     415: UnsupportedMediaTypeError,
     422: ValidationError,
