@@ -91,22 +91,47 @@ fn free_port() -> u16 {
         .port()
 }
 
+/// Start `ilqr-service` on a loopback port that was free a moment ago and
+/// wait until `/healthz` answers. `configure` gives the command its bind
+/// address (flag or environment) and the rest of its setup. Another process
+/// can take the port between the check and the bind; the server then exits,
+/// and the next try picks another port.
+fn serve_on_free_port(configure: impl Fn(&mut Command, &str)) -> (Child, String) {
+    for _ in 0..3 {
+        let bind = format!("127.0.0.1:{}", free_port());
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+        configure(&mut cmd, &bind);
+        let mut server = Child(cmd.spawn().unwrap());
+        let started = std::time::Instant::now();
+        loop {
+            if ilqr_service::server::healthcheck(&bind).is_ok() {
+                return (server, bind);
+            }
+            if server.0.try_wait().unwrap().is_some() {
+                break; // it could not bind: try another port
+            }
+            assert!(
+                started.elapsed() < std::time::Duration::from_secs(10),
+                "the service on {bind} never became healthy"
+            );
+            std::thread::sleep(std::time::Duration::from_millis(50));
+        }
+    }
+    panic!("the service exited at start three times (ports taken?)");
+}
+
 /// `healthcheck` (the container's HEALTHCHECK, which has no curl) follows
 /// the port of `ILQR_BIND`, so moving the service moves the check; it fails
 /// with exit status 1 and a reason when nothing answers.
 #[test]
 fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
-    let bind = format!("127.0.0.1:{}", free_port());
-    let _server = Child(
-        Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
-            .arg("serve")
-            .env("ILQR_BIND", &bind)
+    let (_server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.arg("serve")
+            .env("ILQR_BIND", bind)
             .env("ILQR_WORKERS", "1")
             .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
+            .stderr(std::process::Stdio::null());
+    });
     let check = |env: &[(&str, &str)]| {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
         cmd.arg("healthcheck")
@@ -118,14 +143,7 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
         let out = cmd.output().unwrap();
         (out.status.code(), String::from_utf8(out.stderr).unwrap())
     };
-    let started = std::time::Instant::now();
-    while check(&[("ILQR_BIND", &bind)]).0 != Some(0) {
-        assert!(
-            started.elapsed() < std::time::Duration::from_secs(10),
-            "the service on {bind} never became healthy"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
+    assert_eq!(check(&[("ILQR_BIND", &bind)]).0, Some(0));
     // The bind address is 0.0.0.0-style in a container; only its port counts.
     let port = bind.rsplit(':').next().unwrap();
     let any = format!("0.0.0.0:{port}");
@@ -174,25 +192,13 @@ fn a_config_built_in_code_is_checked_too() {
 #[test]
 fn text_logs_to_a_pipe_have_no_colour_escapes() {
     use std::io::Read;
-    let bind = format!("127.0.0.1:{}", free_port());
-    let mut server = Child(
-        Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
-            .args(["serve", "--bind", &bind, "--workers", "1"])
+    let (mut server, _) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["serve", "--bind", bind, "--workers", "1"])
             .env_remove("ILQR_LOG_FORMAT")
             .env("RUST_LOG", "info")
             .stdout(std::process::Stdio::piped())
-            .stderr(std::process::Stdio::null())
-            .spawn()
-            .unwrap(),
-    );
-    let started = std::time::Instant::now();
-    while ilqr_service::server::healthcheck(&bind).is_err() {
-        assert!(
-            started.elapsed() < std::time::Duration::from_secs(10),
-            "the service on {bind} never became healthy"
-        );
-        std::thread::sleep(std::time::Duration::from_millis(50));
-    }
+            .stderr(std::process::Stdio::null());
+    });
     let _ = server.0.kill();
     let _ = server.0.wait();
     let mut logs = String::new();
