@@ -46,17 +46,30 @@ step "hadolint Dockerfile"
 .venv/bin/hadolint Dockerfile && echo "hadolint: clean"
 
 step "schemathesis against the running release binary"
-PORT=$(.venv/bin/python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
 # Short budgets: generated problems may ask for 10000 steps and iterations.
 SERVER_LOG=$(mktemp -t ilqr-schemathesis-server.XXXXXX.log)
-"$BIN" serve --bind "127.0.0.1:$PORT" --default-time-limit-ms 200 --max-time-limit-ms 500 \
-  --queue-capacity 64 >"$SERVER_LOG" 2>&1 &
-SERVER=$!
-trap 'kill $SERVER 2>/dev/null || true; echo "server log: $SERVER_LOG"' EXIT
-for _ in $(seq 50); do
-  "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null && break
-  sleep 0.1
+SERVER=""
+trap 'if [ -n "$SERVER" ]; then kill $SERVER 2>/dev/null || true; fi; echo "server log: $SERVER_LOG"' EXIT
+# The port was free when picked; another process may take it before the
+# server binds, and the server then exits: pick another (three tries).
+for _ in 1 2 3; do
+  PORT=$(.venv/bin/python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+  "$BIN" serve --bind "127.0.0.1:$PORT" --default-time-limit-ms 200 --max-time-limit-ms 500 \
+    --queue-capacity 64 >"$SERVER_LOG" 2>&1 &
+  SERVER=$!
+  HEALTHY=""
+  for _ in $(seq 100); do
+    if "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then HEALTHY=1; break; fi
+    kill -0 $SERVER 2>/dev/null || break
+    sleep 0.1
+  done
+  [ -n "$HEALTHY" ] && break
+  kill $SERVER 2>/dev/null || true
+  wait $SERVER 2>/dev/null || true
 done
+if [ -z "$HEALTHY" ]; then
+  echo "the server for schemathesis never became healthy:"; cat "$SERVER_LOG"; exit 1
+fi
 # Every check but one: positive_data_acceptance would demand a 2xx for any
 # schema-valid problem, but one rule cannot be written in JSON Schema:
 # initial_controls must have exactly `horizon` rows (a 422 with its pointer).
