@@ -478,7 +478,9 @@ class SolveResult:
         iterations: Iterations performed.
         goal_distance: Distance (m) of the final position from the goal position.
         closest_approach: Per obstacle, the smallest distance (m) from its
-            centre to any state of the trajectory.
+            centre to the path: the straight segments between consecutive
+            states (the path flown under explicit Euler), so a close pass
+            between two knots counts.
         states: x_0..x_N, N + 1 rows of ``[x, y, θ, ẋ, ẏ, θ̇]``.
         controls: u_0..u_{N−1}, N rows of ``[u1, u2]``.
         solve_time_ms: Time spent solving, in ms.
