@@ -23,6 +23,8 @@ use crate::schema;
 
 /// Largest accepted horizon unless the service is configured otherwise.
 pub const DEFAULT_MAX_HORIZON: usize = 10_000;
+/// Horizon of the default (seed) problem, which `{}` asks for.
+pub const DEFAULT_HORIZON: usize = 100;
 /// Largest accepted `solver.max_iterations`.
 pub const MAX_ITERATIONS: usize = 10_000;
 /// Largest accepted number of obstacles.
@@ -211,7 +213,7 @@ impl Default for ProblemSpec {
             model: ModelSpec::default(),
             integrator: Integrator::Euler,
             dt: 0.05,
-            horizon: 100,
+            horizon: DEFAULT_HORIZON,
             initial_state: [5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
             goal_state: [4.0, 9.0, 0.0, 0.0, 0.0, 0.0],
             weights: Weights::default(),

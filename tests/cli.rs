@@ -47,12 +47,16 @@ fn settings_out_of_range_are_rejected_before_serving() {
     for (args, says) in [
         (&["--workers", "0"][..], "--workers"),
         (
-            &["--max-horizon", "0"],
-            "expected an integer from 1 to 10000",
+            &["--max-horizon", "99"],
+            "expected an integer from 100 (the default problem's horizon) to 10000, got 99",
         ),
         (
             &["--max-horizon", "10001"],
-            "expected an integer from 1 to 10000",
+            "expected an integer from 100 (the default problem's horizon) to 10000",
+        ),
+        (
+            &["--max-body-bytes", "0"],
+            "--max-body-bytes / ILQR_MAX_BODY_BYTES: expected at least 4096",
         ),
         (&["--default-time-limit-ms", "0"], "--default-time-limit-ms"),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
@@ -169,7 +173,11 @@ fn a_config_built_in_code_is_checked_too() {
             ..Config::default()
         },
         Config {
-            max_horizon: 0,
+            max_horizon: 99,
+            ..Config::default()
+        },
+        Config {
+            max_body_bytes: 4095,
             ..Config::default()
         },
         Config {

@@ -41,8 +41,12 @@ use tokio::sync::Notify;
 pub use error::{ApiError, PROBLEM_JSON, Problem};
 pub use routes::{ApiDoc, app, openapi, openapi_json};
 
-use crate::problem::{DEFAULT_MAX_HORIZON, Limits};
+use crate::problem::{DEFAULT_HORIZON, DEFAULT_MAX_HORIZON, Limits};
 use pool::Pool;
+
+/// Smallest `--max-body-bytes` accepted: room for any problem without
+/// `initial_controls`, pretty-printed.
+pub const MIN_BODY_BYTES: usize = 4096;
 
 /// Service configuration: flags, each also read from an environment variable.
 #[derive(Debug, Clone, clap::Args)]
@@ -71,11 +75,13 @@ pub struct Config {
     /// Largest `solver.time_limit_ms` a request may ask for, in ms.
     #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000)]
     pub max_time_limit_ms: u64,
-    /// Largest accepted horizon, from 1 to 10000 (the solver's own ceiling:
-    /// the state bounds that keep every rollout finite assume it).
+    /// Largest accepted horizon, from 100 (the default problem's, which
+    /// `{}` asks for) to 10000 (the solver's own ceiling: the state bounds
+    /// that keep every rollout finite assume it).
     #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON)]
     pub max_horizon: usize,
-    /// Largest accepted request body, in bytes.
+    /// Largest accepted request body, in bytes, at least 4096 (the default
+    /// problem takes 0.5 KB, 1.1 KB pretty-printed).
     #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
     pub max_body_bytes: usize,
     /// Seconds in-flight solves get to finish on shutdown before they are
@@ -137,11 +143,21 @@ impl Config {
     /// parsed flags and a `Config` built in code alike: the CLI runs it
     /// before binding, and [`AppState::new`] refuses a config that fails it.
     pub fn check(&self) -> Result<(), String> {
-        if !(1..=DEFAULT_MAX_HORIZON).contains(&self.max_horizon) {
+        // Below the default horizon, `{}` and the document served at
+        // /problems/default would be refused by the service that serves it.
+        if !(DEFAULT_HORIZON..=DEFAULT_MAX_HORIZON).contains(&self.max_horizon) {
             return Err(format!(
-                "--max-horizon / ILQR_MAX_HORIZON: expected an integer from 1 to \
+                "--max-horizon / ILQR_MAX_HORIZON: expected an integer from \
+                 {DEFAULT_HORIZON} (the default problem's horizon) to \
                  {DEFAULT_MAX_HORIZON}, got {}",
                 self.max_horizon
+            ));
+        }
+        if self.max_body_bytes < MIN_BODY_BYTES {
+            return Err(format!(
+                "--max-body-bytes / ILQR_MAX_BODY_BYTES: expected at least \
+                 {MIN_BODY_BYTES} (the default problem takes 0.5 KB), got {}",
+                self.max_body_bytes
             ));
         }
         for (name, ms) in [
