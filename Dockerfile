@@ -82,8 +82,9 @@ EXPOSE 8080
 USER 65532:65532
 
 # There is no shell or curl in distroless, so the health check is the binary
-# itself: `healthcheck` does a raw HTTP GET /healthz against 127.0.0.1 at the
-# port of ILQR_BIND (8080 above) and exits 0/1. So `docker run -e
+# itself: `healthcheck` does a raw HTTP GET /healthz at ILQR_BIND (on
+# 127.0.0.1 at its port when it binds every interface, as above) and exits
+# 0/1. So `docker run -e
 # ILQR_BIND=0.0.0.0:9000` moves the check with the service; a `--bind` flag
 # in the command does not (set ILQR_HEALTHCHECK_ADDR too, see
 # `ilqr-service healthcheck --help`).

@@ -38,8 +38,10 @@ enum Command {
     /// (for container health checks, which have no curl).
     Healthcheck {
         /// Address of the service, HOST:PORT (`127.0.0.1:8080`,
-        /// `localhost:8080`). Default: 127.0.0.1 at the port of `ILQR_BIND`
-        /// (8080 when unset), so it follows the server's setting.
+        /// `localhost:8080`). Default: `ILQR_BIND`, so it follows the
+        /// server's setting; an all-interfaces bind (`0.0.0.0`, `[::]`) is
+        /// checked on loopback (`127.0.0.1`, `[::1]`) at its port, and an
+        /// unset one at `127.0.0.1:8080`.
         #[arg(long, env = "ILQR_HEALTHCHECK_ADDR")]
         addr: Option<String>,
     },
@@ -69,13 +71,24 @@ pub fn main() -> ExitCode {
     }
 }
 
-/// `127.0.0.1:<port of ILQR_BIND>`.
+/// Where a service started with the same environment listens: `ILQR_BIND`
+/// itself when it names one address (`[::1]:9000`, `10.0.0.5:8080`), or
+/// the loopback address of its family at its port when it binds every
+/// interface (`0.0.0.0:8080` → `127.0.0.1:8080`, `[::]:8080` →
+/// `[::1]:8080`); `127.0.0.1:8080` when unset or unparsable.
 fn local_addr() -> String {
-    let port = std::env::var("ILQR_BIND")
+    use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
+    let mut addr = std::env::var("ILQR_BIND")
         .ok()
-        .and_then(|b| b.parse::<std::net::SocketAddr>().ok())
-        .map_or(8080, |a| a.port());
-    format!("127.0.0.1:{port}")
+        .and_then(|b| b.parse::<SocketAddr>().ok())
+        .unwrap_or_else(|| SocketAddr::from((Ipv4Addr::LOCALHOST, 8080)));
+    if addr.ip().is_unspecified() {
+        addr.set_ip(match addr.ip() {
+            IpAddr::V4(_) => IpAddr::V4(Ipv4Addr::LOCALHOST),
+            IpAddr::V6(_) => IpAddr::V6(Ipv6Addr::LOCALHOST),
+        });
+    }
+    addr.to_string()
 }
 
 fn serve(config: Config) -> ExitCode {

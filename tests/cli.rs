@@ -101,8 +101,13 @@ fn free_port() -> u16 {
 /// can take the port between the check and the bind; the server then exits,
 /// and the next try picks another port.
 fn serve_on_free_port(configure: impl Fn(&mut Command, &str)) -> (Child, String) {
+    serve_on_free_port_of("127.0.0.1", configure)
+}
+
+/// [`serve_on_free_port`] on another loopback address (`127.0.0.2`).
+fn serve_on_free_port_of(host: &str, configure: impl Fn(&mut Command, &str)) -> (Child, String) {
     for _ in 0..3 {
-        let bind = format!("127.0.0.1:{}", free_port());
+        let bind = format!("{host}:{}", free_port());
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
         configure(&mut cmd, &bind);
         let mut server = Child(cmd.spawn().unwrap());
@@ -160,6 +165,17 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     let (code, stderr) = check(&[("ILQR_HEALTHCHECK_ADDR", &nobody)]);
     assert_eq!(code, Some(1));
     assert!(stderr.starts_with("unhealthy: "), "{stderr}");
+
+    // A service bound to one specific address is checked there, not on
+    // 127.0.0.1 (which used to be assumed whatever ILQR_BIND said).
+    let (_other, other) = serve_on_free_port_of("127.0.0.2", |cmd, bind| {
+        cmd.arg("serve")
+            .env("ILQR_BIND", bind)
+            .env("ILQR_WORKERS", "1")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    assert_eq!(check(&[("ILQR_BIND", &other)]), (Some(0), String::new()));
 }
 
 /// A `Config` built in code gets the same checks: the service refuses to
