@@ -103,7 +103,11 @@ pub struct ProblemSpec {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(default, deny_unknown_fields)]
 pub struct ModelSpec {
-    /// Model kind.
+    /// Model kind. `quadrotor_2d` (the only one today) is the paper's
+    /// planar quadrotor: `x` right, `y` up, θ counter-clockwise from
+    /// upright, `u1` the rotor at `+r` along the body's x axis, and
+    /// `m·ẍ = −(u1 + u2)·sin θ`, `m·ÿ = (u1 + u2)·cos θ − m·g`,
+    /// `I·θ̈ = r·(u1 − u2)`.
     #[serde(rename = "type", deserialize_with = "de_name")]
     pub kind: ModelKind,
     /// Mass m in kg, from 1e-6 to 1e6. Default 1.
@@ -125,7 +129,11 @@ pub struct ModelSpec {
 #[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum ModelKind {
-    /// State `[x, y, θ, ẋ, ẏ, θ̇]`, controls `[u1, u2]` (rotor thrusts, N).
+    /// The planar quadrotor of the paper (eqs. 4–6). State `[x, y, θ, ẋ,
+    /// ẏ, θ̇]`, controls `[u1, u2]` (rotor thrusts, N); `x` right, `y` up, θ
+    /// counter-clockwise from upright, `u1` the rotor at `+r` along the
+    /// body's x axis: `m·ẍ = −(u1 + u2)·sin θ`, `m·ÿ = (u1 + u2)·cos θ − m·g`,
+    /// `I·θ̈ = r·(u1 − u2)`.
     #[default]
     #[serde(rename = "quadrotor_2d")]
     Quadrotor2d,
