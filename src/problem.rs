@@ -194,8 +194,11 @@ pub struct SolverSpec {
     /// counts it from admission, so time spent waiting for a worker is part
     /// of it; it is checked every iteration, between line-search rollouts
     /// and between the backward passes that raise the regularisation, so
-    /// the answer can come one backward pass and rollout late (about 1 ms
-    /// at N = 10000). At most the service's maximum (60000 unless
+    /// the answer can come one linearisation, backward pass and rollout
+    /// late. That grows with N × (1 + obstacles): 1–4 ms at N = 10000 with
+    /// one obstacle, about 20 ms with 100 (the linearisation evaluates every
+    /// obstacle at every knot; it and the backward pass are what keep the
+    /// returned gains about the returned trajectory). At most the service's maximum (60000 unless
     /// configured). Unset: the service's default (10000 unless configured;
     /// the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]
