@@ -119,6 +119,7 @@ pub struct Gains {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct TraceEntry {
     /// 1-based iteration number.
+    #[schema(minimum = 1)]
     pub iteration: usize,
     /// Cost after the iteration (unchanged when no step was accepted).
     pub cost: f64,

@@ -3,13 +3,17 @@
 //! One process-wide recorder from the `metrics` facade, rendered by
 //! `GET /metrics`. Names:
 //!
-//! * `http_requests_total{route, status}`, counter;
+//! * `http_requests_total{route, status}`, counter, every answer a route
+//!   sent. Not counted: what hyper rejects before any route runs (400 for
+//!   broken framing, 431), and a request whose client left before its
+//!   answer (its solve counts as `cancelled` below);
 //! * `solves_total{status}`, counter, by solve status (`converged`, …); a
 //!   solve withdrawn from the queue because its client left counts as
 //!   `cancelled`;
 //! * `solve_rejections_total{reason}`, counter, every `/solve` request that
 //!   got an error: `malformed_json`, `unsupported_media_type`, `too_large`,
-//!   `invalid`, `queue_full`, `shutting_down`, `internal` (a solver panic);
+//!   `body_timeout`, `unreadable_body`, `invalid`, `queue_full`,
+//!   `shutting_down`, `internal` (a solver panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram.
