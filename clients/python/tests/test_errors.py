@@ -74,6 +74,17 @@ def test_a_flood_of_invalid_values_lists_100_and_counts_the_rest(client: Client)
     assert info.value.unlisted == 0
 
 
+@pytest.mark.parametrize("bad", ["", "has space", "é", "x" * 129])
+def test_a_request_id_the_service_would_replace_is_refused_before_sending(
+    client: Client, bad: str
+) -> None:
+    with pytest.raises(ValueError, match="request_id"):
+        client.solve({}, request_id=bad)
+    # The longest and oddest ids it keeps go through unchanged.
+    for good in ["x" * 128, "a-b_c.d~!#"]:
+        assert client.solve({"output": {"gains": False, "trace": False}}, request_id=good).request_id == good
+
+
 def test_validation_error_carries_the_request_id(client: Client) -> None:
     with pytest.raises(ValidationError) as info:
         client.solve({"dt": -1}, request_id="bad-dt-42")

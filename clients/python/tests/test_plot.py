@@ -54,6 +54,12 @@ def test_plot_cost_is_log_scale(seed_result: SolveResult, figure: Any) -> None:
     ax = plot_cost(seed_result, ax=figure.subplots())
     assert ax.get_yscale() == "log"
     assert len(ax.lines[0].get_ydata()) == seed_result.iterations + 1
+    # Iterations are whole numbers; so are the ticks, also when zoomed in
+    # (on a few iterations matplotlib would tick every 0.5).
+    ax.set_xlim(0, 3)
+    ax.figure.canvas.draw()
+    ticks = [t for t in ax.get_xticks() if ax.get_xlim()[0] <= t <= ax.get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks), ticks
 
 
 def test_plot_cost_of_a_zero_cost_result_is_linear(client: Any, figure: Any) -> None:

@@ -153,7 +153,9 @@ class Client:
                 the seed scenario. Omitted fields take the service's defaults.
             timeout: Overrides the client's timeout for this call.
             request_id: Sent as ``x-request-id``; the service logs it and
-                echoes it (also on errors), which helps correlate logs.
+                echoes it (also on errors), which helps correlate logs. 1 to
+                128 visible ASCII characters (no spaces): the service would
+                replace anything else with an id of its own.
 
         Returns:
             The parsed answer. How the solve ended is ``result.status``; every
@@ -167,8 +169,15 @@ class Client:
             requests.RequestException: transport failures (after retries for
                 connection errors).
             TypeError, ValueError: the problem cannot be encoded as JSON
-                (e.g. it contains NaN or infinity).
+                (e.g. it contains NaN or infinity), or ``request_id`` is not
+                one the service would keep.
         """
+        if request_id is not None and not (
+            0 < len(request_id) <= 128 and all("!" <= c <= "~" for c in request_id)
+        ):
+            raise ValueError(
+                f"request_id must be 1 to 128 visible ASCII characters (no spaces), got {request_id!r}"
+            )
         try:
             body = json.dumps(self._problem_body(problem), allow_nan=False, separators=(",", ":"))
         except ValueError as exc:

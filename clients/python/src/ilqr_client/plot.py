@@ -171,6 +171,9 @@ def plot_cost(result: SolveResult, ax: Optional["Axes"] = None) -> "Axes":
     if all(c > 0 for c in costs):
         ax.set_yscale("log")
     ax.set_xlabel("iteration")
+    from matplotlib.ticker import MaxNLocator  # matplotlib is present: checked above
+
+    ax.xaxis.set_major_locator(MaxNLocator(integer=True))  # no ticks at iteration 2.5
     ax.set_ylabel("cost J")
     ax.set_title(f"cost: {result.iterations} iterations, {result.solve_time_ms:.1f} ms")
     ax.grid(True, which="both", alpha=0.3)
