@@ -115,9 +115,33 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             return ExitCode::from(2);
         }
     };
+    // Open the output before solving, so that an unwritable path fails at
+    // once rather than after a long solve. Not truncated yet: a solve that
+    // fails leaves an existing file as it was (and removes one it created).
+    let out_file = match output.as_ref().filter(|p| p.as_os_str() != "-") {
+        None => None,
+        Some(path) => {
+            let existed = path.exists();
+            match std::fs::OpenOptions::new()
+                .write(true)
+                .create(true)
+                .truncate(false)
+                .open(path)
+            {
+                Ok(f) => Some((f, existed)),
+                Err(e) => {
+                    eprintln!("error: cannot write {}: {e}", path.display());
+                    return ExitCode::FAILURE;
+                }
+            }
+        }
+    };
     let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
         Ok(r) => r,
         Err(e) => {
+            if let (Some(path), Some((_, false))) = (output.as_ref(), out_file.as_ref()) {
+                let _ = std::fs::remove_file(path);
+            }
             eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);
             return ExitCode::from(2);
         }
@@ -139,10 +163,12 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
                 return ExitCode::FAILURE;
             }
         };
-        let written = if path.as_os_str() == "-" {
-            writeln!(std::io::stdout(), "{json}")
-        } else {
-            std::fs::write(&path, json + "\n")
+        let written = match out_file {
+            None => writeln!(std::io::stdout(), "{json}"),
+            Some((mut file, _)) => file
+                .set_len(0)
+                .and_then(|()| file.write_all(json.as_bytes()))
+                .and_then(|()| file.write_all(b"\n")),
         };
         if let Err(e) = written {
             eprintln!("error: cannot write {}: {e}", path.display());

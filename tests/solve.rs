@@ -177,6 +177,19 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
         "error: /dt: must be a positive number of seconds, at most 10, got 1e300\n"
     );
 
+    // An unwritable output fails before the solve (no summary printed).
+    let unwritable = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["solve", "-o", "/nonexistent-dir/r.json"])
+        .output()
+        .unwrap();
+    assert_eq!(unwritable.status.code(), Some(1));
+    assert!(unwritable.stdout.is_empty(), "solved first");
+    assert!(
+        String::from_utf8(unwritable.stderr)
+            .unwrap()
+            .starts_with("error: cannot write /nonexistent-dir/r.json: "),
+    );
+
     // Past the 100 listed errors, one line counts the rest.
     let rows = vec!["[1e7, 1e7]"; 5000].join(",");
     let flood = run(&format!(
