@@ -113,6 +113,14 @@ pub struct Gains {
     /// `d_k`, see the schema description.
     #[schema(schema_with = schema::feedforward)]
     pub feedforward: Vec<[f64; 2]>,
+    /// The regularisation μ of the backward pass that produced these gains
+    /// (`Q_uu + μI` in place of `Q_uu`, in the cost's units per N²). 0: the
+    /// undamped Riccati gains about the returned trajectory; larger values
+    /// give smaller, more cautious `K` and `d`. A solve that converges
+    /// usually ends at 0; one stopped by a cap, a budget or near an
+    /// obstacle's steep centre may not.
+    #[schema(minimum = 0.0)]
+    pub regularization: f64,
 }
 
 /// One iteration of the solver.
@@ -241,6 +249,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
             .map(|k| [k.row(0).transpose().into(), k.row(1).transpose().into()])
             .collect(),
         feedforward: solver.feedforward().iter().map(|d| (*d).into()).collect(),
+        regularization: summary.gains_regularization,
     });
     let trace = spec.output.trace.then(|| {
         solver

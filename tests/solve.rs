@@ -136,6 +136,31 @@ fn gains_are_left_out_when_no_backward_pass_completed() {
     assert!(gains.feedback.iter().flatten().flatten().any(|k| *k != 0.0));
 }
 
+/// `gains.regularization` is on the wire and says how the gains were
+/// damped: 0 for the seed (undamped Riccati gains about its optimum); the
+/// three-obstacle example stops with μ > 0, and its gains say so. That they
+/// are exactly the gains of that μ is checked in the core's tests.
+#[test]
+fn gains_report_the_regularization_they_were_built_with() {
+    let cancel = AtomicBool::new(false);
+    let seed = solve(&spec(json!({})), None, &cancel).unwrap();
+    assert_eq!(seed.status.as_str(), "converged");
+    assert_eq!(seed.gains.expect("seed gains").regularization, 0.0);
+
+    let example = std::fs::read("examples/three_obstacles.json").unwrap();
+    let three = parse(&example).unwrap();
+    let r = solve(&three, None, &cancel).unwrap();
+    let mu = r.gains.as_ref().expect("gains").regularization;
+    assert!(mu > 0.0 && mu.is_finite(), "{mu}");
+    let wire: serde_json::Value = serde_json::to_value(&r).unwrap();
+    assert_eq!(
+        wire["gains"]["regularization"],
+        json!(mu),
+        "{}",
+        wire["gains"]["regularization"]
+    );
+}
+
 /// `solve -o -` puts the result JSON alone on standard output (so it pipes
 /// into jq) and the human summary on standard error; a bad problem is an
 /// error naming the field, with exit status 2.

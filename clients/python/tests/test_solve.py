@@ -47,6 +47,8 @@ def test_seed_problem_gains(seed_result: SolveResult) -> None:
     assert len(gains.feedback) == 100
     assert all(len(k) == 2 and all(len(row) == 6 for row in k) for k in gains.feedback)
     assert len(gains.feedforward) == 100 and all(len(d) == 2 for d in gains.feedforward)
+    # The seed converges through the unregularised pass: undamped gains.
+    assert gains.regularization == 0.0
     # On the nominal trajectory the feedback policy reproduces the nominal controls.
     k = 42
     state, control = seed_result.states[k], seed_result.controls[k]

@@ -205,6 +205,11 @@ pub struct Summary {
     /// cancellation or [`Status::NoProgress`] at iteration 0); the gains are
     /// then zero, which is no policy at all.
     pub has_gains: bool,
+    /// The regularisation μ of the backward pass that produced the gains
+    /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains
+    /// of the final model, larger values damp `K` and `d`. Meaningless
+    /// without [`Summary::has_gains`].
+    pub gains_regularization: f64,
 }
 
 /// Input the solver cannot work with.
@@ -422,6 +427,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut converged = false;
         let mut stale = true;
         let mut has_gains = false;
+        let mut gains_mu = 0.0;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
@@ -437,6 +443,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 match self.backward(mu) {
                     Some(bw) => {
                         has_gains = true;
+                        gains_mu = mu;
                         break bw;
                     }
                     None => {
@@ -492,6 +499,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             {
                 bw = unregularised;
                 mu = 0.0;
+                gains_mu = 0.0;
                 if negligible(&bw) {
                     break Status::Converged;
                 }
@@ -580,6 +588,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             iterations,
             solve_time: start.elapsed(),
             has_gains,
+            gains_regularization: gains_mu,
         })
     }
 

@@ -504,3 +504,68 @@ fn a_solve_that_converges_at_the_iteration_cap_is_converged() {
         (Status::Converged, 0, free.cost)
     );
 }
+
+/// `Summary::gains_regularization` is the μ the returned gains were built
+/// with: at the last knot, where `V' = l_f` exactly, `K` and `d` equal the
+/// textbook `−(Q_uu + μI)⁻¹(Q_ux, Q_u)` about the returned trajectory with
+/// that μ and with no other. The seed ends at μ = 0; three obstacles end at
+/// μ > 0 (the case that needs the field), where μ = 0 would be ~1% off.
+#[test]
+#[allow(non_snake_case)]
+fn the_reported_gains_regularization_is_the_one_the_gains_were_built_with() {
+    let mut three = seed_problem(100, 0.05);
+    for center in [[3.0, 6.5], [6.0, 6.0]] {
+        three.cost = three.cost.with_stage(ilqr::ExpObstacle {
+            center: Vector2::from(center),
+            weight: 1000.0,
+            position: (0, 1),
+        });
+    }
+    let options = Options {
+        max_iterations: 300,
+        tolerance: 1e-9,
+        ..Options::default()
+    };
+    for (name, problem, damped) in [
+        ("seed", seed_problem(100, 0.05), false),
+        ("three obstacles", three, true),
+    ] {
+        let (solver, s) = solve_problem(&problem, &options);
+        assert!(s.has_gains, "{name}: {s:?}");
+        assert_eq!(s.gains_regularization > 0.0, damped, "{name}: {s:?}");
+
+        let n = problem.horizon;
+        let (x, u) = (solver.states()[n - 1], solver.controls()[n - 1]);
+        let (A, B) = problem.dynamics.linearize(&x, &u);
+        let mut l = ilqr::StageExpansion::zeros();
+        problem.cost.stage_expand(n - 1, &x, &u, &mut l);
+        let mut f = ilqr::TerminalExpansion::zeros();
+        problem.cost.terminal_expand(&solver.states()[n], &mut f);
+        let Q_u = l.l_u + B.transpose() * f.l_x;
+        let Q_uu = l.l_uu + B.transpose() * f.l_xx * B;
+        let Q_ux = l.l_ux + B.transpose() * f.l_xx * A;
+        let gains = |mu: f64| {
+            let inv = (Q_uu + nalgebra::Matrix2::identity() * mu)
+                .try_inverse()
+                .expect("Q_uu is positive definite at the last knot");
+            (-inv * Q_ux, -inv * Q_u)
+        };
+        let (K, d) = gains(s.gains_regularization);
+        let (K_got, d_got) = (solver.feedback()[n - 1], solver.feedforward()[n - 1]);
+        let err = (K_got - K).amax() / K.amax();
+        assert!(
+            err < 1e-9,
+            "{name}: K off by {err:e} at μ = {}",
+            s.gains_regularization
+        );
+        assert!(
+            (d_got - d).amax() <= 1e-9 * d.amax().max(1e-6),
+            "{name}: d {d_got} vs {d}"
+        );
+        if damped {
+            let (K0, _) = gains(0.0);
+            let off = (K_got - K0).amax() / K0.amax();
+            assert!(off > 1e-4, "{name}: μ = 0 would match too ({off:e})");
+        }
+    }
+}

@@ -408,10 +408,15 @@ class Gains:
             (states), row-major.
         feedforward: d_0..d_{N−1}: N rows of 2, the control change the solver
             would take next (near zero at convergence).
+        regularization: The μ of the backward pass that produced the gains
+            (``Q_uu + μI``): 0 for the undamped Riccati gains, larger for
+            damped, more cautious ones. ``None`` from a service too old to
+            report it.
     """
 
     feedback: List[List[List[float]]]
     feedforward: List[List[float]]
+    regularization: Optional[float] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/gains") -> "Gains":
@@ -423,7 +428,9 @@ class Gains:
             for i, k in enumerate(_list(_require(data, "feedback", where), f"{where}/feedback"))
         ]
         feedforward = _matrix(_require(data, "feedforward", where), f"{where}/feedforward", CONTROL_DIM)
-        return cls(feedback=feedback, feedforward=feedforward)
+        raw_mu = data.get("regularization")
+        regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
+        return cls(feedback=feedback, feedforward=feedforward, regularization=regularization)
 
     def control(self, k: int, state: Sequence[float], nominal_state: Sequence[float],
                 nominal_control: Sequence[float]) -> List[float]:
