@@ -93,10 +93,13 @@ pub struct SolveResult {
     /// false, and when no backward pass completed: a solve that ended
     /// (`time_limit`, `cancelled` or `no_progress`, 0 iterations) while its
     /// first pass was still raising the regularisation has no policy to give.
+    // Left out when None, never `null`: the schema must not offer null.
     #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
     pub gains: Option<Gains>,
     /// One row per iteration; absent when `output.trace` is false.
     #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
     pub trace: Option<Vec<TraceEntry>>,
     /// Time spent solving, in ms.
     pub solve_time_ms: f64,

@@ -120,3 +120,73 @@ fn the_spec_states_the_defaults_the_code_applies() {
     }
     assert_eq!(checked, 19);
 }
+
+/// The answer never holds `null` (left-out members are absent, and every
+/// number is finite), so no schema reachable from `SolveResult` may admit
+/// it: a client generated from the spec would otherwise type `gains` and
+/// `trace` as nullable and make every caller check for a value that never
+/// comes.
+#[test]
+fn nothing_in_the_result_schema_admits_null() {
+    let spec: serde_json::Value =
+        serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
+    let schemas = &spec["components"]["schemas"];
+    fn nulls(
+        v: &serde_json::Value,
+        schemas: &serde_json::Value,
+        at: String,
+        seen: &mut Vec<String>,
+        out: &mut Vec<String>,
+    ) {
+        match v {
+            serde_json::Value::Object(map) => {
+                if let Some(r) = map.get("$ref").and_then(|r| r.as_str()) {
+                    let name = r.trim_start_matches("#/components/schemas/").to_string();
+                    if !seen.contains(&name) {
+                        seen.push(name.clone());
+                        nulls(
+                            &schemas[&name],
+                            schemas,
+                            format!("{at} -> {name}"),
+                            seen,
+                            out,
+                        );
+                    }
+                }
+                let t = map.get("type");
+                let admits = t == Some(&serde_json::json!("null"))
+                    || t.and_then(|t| t.as_array())
+                        .is_some_and(|a| a.contains(&serde_json::json!("null")))
+                    || map.get("nullable") == Some(&serde_json::json!(true));
+                if admits {
+                    out.push(at.clone());
+                }
+                for (k, child) in map {
+                    nulls(child, schemas, format!("{at}/{k}"), seen, out);
+                }
+            }
+            serde_json::Value::Array(items) => {
+                for (i, child) in items.iter().enumerate() {
+                    nulls(child, schemas, format!("{at}/{i}"), seen, out);
+                }
+            }
+            _ => {}
+        }
+    }
+    let (mut seen, mut out) = (vec!["SolveResult".to_string()], Vec::new());
+    nulls(
+        &schemas["SolveResult"],
+        schemas,
+        "SolveResult".into(),
+        &mut seen,
+        &mut out,
+    );
+    assert!(
+        seen.contains(&"Gains".to_string()) && seen.contains(&"TraceEntry".to_string()),
+        "{seen:?}"
+    );
+    assert!(
+        out.is_empty(),
+        "schemas admitting null in the result: {out:?}"
+    );
+}
