@@ -42,6 +42,9 @@ step "OpenAPI freshness (the CLI prints the same document)"
 step "Python client tests against the release binary"
 ILQR_SERVICE_BIN="$BIN" .venv/bin/python -m pytest clients/python/tests -q
 
+step "mypy --strict: the Python client's types, numpy arrays included"
+(cd clients/python && ../../.venv/bin/mypy --strict src/ilqr_client tests/test_typing.py)
+
 step "hadolint Dockerfile"
 .venv/bin/hadolint Dockerfile && echo "hadolint: clean"
 

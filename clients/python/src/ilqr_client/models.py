@@ -20,10 +20,17 @@ Only the shape of responses is checked here; the service validates problems.
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 if TYPE_CHECKING:  # pragma: no cover
     import numpy
+
+#: A vector field's accepted types: a list or tuple of numbers, or a numpy
+#: array (sent through its ``tolist``). Spelled out so that ``mypy --strict``
+#: accepts numpy arrays, which are not ``Sequence``s to a type checker.
+Floats = Union[Sequence[float], "numpy.ndarray[Any, Any]"]
+#: A matrix field's accepted types: rows of :data:`Floats`, or a 2-D numpy array.
+FloatRows = Union[Sequence[Floats], "numpy.ndarray[Any, Any]"]
 
 __all__ = [
     "SOLVE_STATUSES",
@@ -196,9 +203,9 @@ class Weights:
         extra: Members this client does not know; sent as they are.
     """
 
-    state: Optional[Sequence[float]] = None
-    control: Optional[Sequence[float]] = None
-    terminal: Optional[Sequence[float]] = None
+    state: Optional[Floats] = None
+    control: Optional[Floats] = None
+    terminal: Optional[Floats] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
@@ -222,7 +229,7 @@ class Obstacle:
         extra: Members this client does not know; sent as they are.
     """
 
-    center: Sequence[float]
+    center: Floats
     weight: float
     extra: Dict[str, Any] = field(default_factory=dict)
 
@@ -322,11 +329,11 @@ class Problem:
     integrator: Optional[str] = None
     dt: Optional[float] = None
     horizon: Optional[int] = None
-    initial_state: Optional[Sequence[float]] = None
-    goal_state: Optional[Sequence[float]] = None
+    initial_state: Optional[Floats] = None
+    goal_state: Optional[Floats] = None
     weights: Optional[Weights] = None
     obstacles: Optional[Sequence[Obstacle]] = None
-    initial_controls: Optional[Sequence[Sequence[float]]] = None
+    initial_controls: Optional[FloatRows] = None
     solver: Optional[SolverOptions] = None
     output: Optional[OutputOptions] = None
     extra: Dict[str, Any] = field(default_factory=dict)
@@ -432,8 +439,8 @@ class Gains:
         regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
         return cls(feedback=feedback, feedforward=feedforward, regularization=regularization)
 
-    def control(self, k: int, state: Sequence[float], nominal_state: Sequence[float],
-                nominal_control: Sequence[float]) -> List[float]:
+    def control(self, k: int, state: Floats, nominal_state: Floats,
+                nominal_control: Floats) -> List[float]:
         """Evaluate the feedback policy at step ``k``.
 
         Args:

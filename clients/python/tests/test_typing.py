@@ -1,0 +1,48 @@
+"""numpy arrays are first-class problem values, at run time and to a type checker.
+
+The test command also runs ``mypy --strict`` over the package and this file,
+so a signature that rejects ``numpy.ndarray`` (numpy arrays are not
+``Sequence``s to a type checker) fails CI, not a user's type check.
+"""
+
+from __future__ import annotations
+
+import json
+from typing import List
+
+import pytest
+from ilqr_client import Gains, Obstacle, Problem, Weights
+
+pytest.importorskip("numpy")
+import numpy as np  # noqa: E402  (typed, unlike importorskip's return value)
+
+
+def test_numpy_arrays_in_every_vector_and_matrix_field_become_plain_json() -> None:
+    problem = Problem(
+        initial_state=np.array([5.0, 0, 0, 0, 0, 0]),
+        goal_state=np.zeros(6),
+        weights=Weights(state=np.ones(6), control=np.full(2, 0.1), terminal=np.full(6, 5e4)),
+        obstacles=[Obstacle(center=np.array([4.5, 4.5]), weight=1000.0)],
+        initial_controls=np.full((100, 2), 4.905),
+        dt=0.05,
+    )
+    doc = problem.to_dict()
+    # json.dumps without a default: every value is a plain JSON type.
+    text = json.dumps(doc, allow_nan=False)
+    assert json.loads(text)["initial_controls"][99] == [4.905, 4.905]
+    assert doc["obstacles"] == [{"center": [4.5, 4.5], "weight": 1000.0}]
+    assert doc["weights"]["terminal"] == [5e4] * 6
+
+    # Rows may be arrays too, and tuples stay accepted.
+    rows = Problem(initial_controls=[np.array([4.9, 4.9])] * 3, goal_state=(4, 9, 0, 0, 0, 0))
+    assert rows.to_dict() == {"initial_controls": [[4.9, 4.9]] * 3, "goal_state": [4, 9, 0, 0, 0, 0]}
+
+
+def test_the_feedback_policy_takes_numpy_states() -> None:
+    gains = Gains(
+        feedback=[[[1.0, 0, 0, 0, 0, 0], [0, 2.0, 0, 0, 0, 0]]],
+        feedforward=[[0.0, 0.0]],
+        regularization=0.0,
+    )
+    u: List[float] = gains.control(0, np.ones(6), np.zeros(6), np.array([4.0, 5.0]))
+    assert u == [5.0, 7.0]
