@@ -115,33 +115,32 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             return ExitCode::from(2);
         }
     };
-    // Open the output before solving, so that an unwritable path fails at
-    // once rather than after a long solve. Not truncated yet: a solve that
-    // fails leaves an existing file as it was (and removes one it created).
-    let out_file = match output.as_ref().filter(|p| p.as_os_str() != "-") {
-        None => None,
-        Some(path) => {
-            let existed = path.exists();
-            match std::fs::OpenOptions::new()
-                .write(true)
-                .create(true)
-                .truncate(false)
-                .open(path)
-            {
-                Ok(f) => Some((f, existed)),
-                Err(e) => {
-                    eprintln!("error: cannot write {}: {e}", path.display());
-                    return ExitCode::FAILURE;
-                }
-            }
+    // Check the output before solving, so that an unwritable path fails at
+    // once rather than after a long solve: open it for writing without
+    // truncating, and remove it again if this made it. So nothing is left
+    // behind if the solve fails or the process is killed, and an existing
+    // file keeps its content until the result is written. The file is
+    // opened again to write, which also works for `/dev/null`, `/dev/stdout`
+    // and pipes (`-o >(jq .)`), where truncation is not possible.
+    let out_path = output.as_ref().filter(|p| p.as_os_str() != "-");
+    if let Some(path) = out_path {
+        let existed = path.exists();
+        let probe = std::fs::OpenOptions::new()
+            .write(true)
+            .create(true)
+            .truncate(false)
+            .open(path);
+        if let Err(e) = probe {
+            eprintln!("error: cannot write {}: {e}", path.display());
+            return ExitCode::FAILURE;
         }
-    };
+        if !existed {
+            let _ = std::fs::remove_file(path);
+        }
+    }
     let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
         Ok(r) => r,
         Err(e) => {
-            if let (Some(path), Some((_, false))) = (output.as_ref(), out_file.as_ref()) {
-                let _ = std::fs::remove_file(path);
-            }
             eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);
             return ExitCode::from(2);
         }
@@ -155,7 +154,7 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
     } else {
         print!("{text}");
     }
-    if let Some(path) = output {
+    if let Some(path) = output.as_ref() {
         let json = match serde_json::to_string_pretty(&result) {
             Ok(j) => j,
             Err(e) => {
@@ -163,12 +162,10 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
                 return ExitCode::FAILURE;
             }
         };
-        let written = match out_file {
+        let written = match out_path {
             None => writeln!(std::io::stdout(), "{json}"),
-            Some((mut file, _)) => file
-                .set_len(0)
-                .and_then(|()| file.write_all(json.as_bytes()))
-                .and_then(|()| file.write_all(b"\n")),
+            Some(path) => std::fs::File::create(path)
+                .and_then(|mut file| file.write_all(format!("{json}\n").as_bytes())),
         };
         if let Err(e) = written {
             eprintln!("error: cannot write {}: {e}", path.display());

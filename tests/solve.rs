@@ -231,6 +231,117 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
     );
 }
 
+/// `-o FILE` is checked before the solve but written only after it: an
+/// invalid problem leaves an existing file as it was and creates none, a
+/// solve killed midway leaves nothing behind, and devices and pipes
+/// (`/dev/null`, `/dev/stdout`), which cannot be truncated, take the JSON.
+#[test]
+fn the_cli_output_file_is_written_only_with_a_result() {
+    use std::process::{Command, Stdio};
+    let dir = std::env::temp_dir().join(format!("ilqr-cli-out-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bin = env!("CARGO_BIN_EXE_ilqr-service");
+    let problem = |name: &str, doc: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, doc).unwrap();
+        path
+    };
+    let bad = problem("bad.json", r#"{"dt": -1}"#);
+
+    // Invalid problem: an existing output keeps its content, a new one is
+    // not created.
+    let existing = dir.join("existing.json");
+    std::fs::write(&existing, "keep me").unwrap();
+    let out = Command::new(bin)
+        .arg("solve")
+        .arg(&bad)
+        .arg("-o")
+        .arg(&existing)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(std::fs::read_to_string(&existing).unwrap(), "keep me");
+    let fresh = dir.join("fresh.json");
+    let out = Command::new(bin)
+        .arg("solve")
+        .arg(&bad)
+        .arg("-o")
+        .arg(&fresh)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert!(!fresh.exists(), "an invalid problem left {fresh:?}");
+
+    // A valid one overwrites the existing file with the whole result.
+    let out = Command::new(bin)
+        .args(["solve", "-o"])
+        .arg(&existing)
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{out:?}");
+    let written: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&existing).unwrap()).unwrap();
+    assert_eq!(written["status"], "converged");
+
+    // Devices: /dev/null swallows it, /dev/stdout carries it into a pipe.
+    let out = Command::new(bin)
+        .args(["solve", "-o", "/dev/null"])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = Command::new(bin)
+        .args(["solve", "-o", "/dev/stdout"])
+        .stdout(Stdio::piped())
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let stdout = String::from_utf8(out.stdout).unwrap();
+    let json_start = stdout.find("{\n").expect("the JSON follows the summary");
+    let piped: serde_json::Value = serde_json::from_str(&stdout[json_start..]).unwrap();
+    assert_eq!(piped["status"], "converged");
+
+    // Killed during a long solve (about 2.5 s: N = 10000, 100 obstacles):
+    // no output file appears.
+    let obstacles: Vec<_> = (0..100)
+        .map(
+            |i| json!({"center": [f64::from(i % 10) - 2.5, f64::from(i / 10) - 0.5], "weight": 10}),
+        )
+        .collect();
+    let long = problem(
+        "long.json",
+        &json!({"horizon": 10000, "dt": 0.0005, "obstacles": obstacles,
+                "solver": {"tolerance": 0, "max_iterations": 10000}})
+        .to_string(),
+    );
+    let killed = dir.join("killed.json");
+    let mut child = Command::new(bin)
+        .arg("solve")
+        .arg(&long)
+        .arg("-o")
+        .arg(&killed)
+        .stdout(Stdio::null())
+        .stderr(Stdio::null())
+        .spawn()
+        .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    assert!(
+        child.try_wait().unwrap().is_none(),
+        "the long solve ended early"
+    );
+    child.kill().unwrap();
+    child.wait().unwrap();
+    assert!(!killed.exists(), "a killed solve left {killed:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
 /// `closest_approach` measures the path between the states, not only the
 /// states: at `dt = 1` the seed's path cuts between two knots that are both
 /// 3.4 m from the obstacle centre, passing 0.2 m from it. Checked against
