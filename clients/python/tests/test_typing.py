@@ -8,10 +8,11 @@ so a signature that rejects ``numpy.ndarray`` (numpy arrays are not
 from __future__ import annotations
 
 import json
+import typing
 from typing import List
 
 import pytest
-from ilqr_client import Gains, Obstacle, Problem, Weights
+from ilqr_client import FloatRows, Floats, Gains, Obstacle, Problem, SolveResult, Weights
 
 pytest.importorskip("numpy")
 import numpy as np  # noqa: E402  (typed, unlike importorskip's return value)
@@ -46,3 +47,13 @@ def test_the_feedback_policy_takes_numpy_states() -> None:
     )
     u: List[float] = gains.control(0, np.ones(6), np.zeros(6), np.array([4.0, 5.0]))
     assert u == [5.0, 7.0]
+
+
+def test_type_hints_resolve_at_run_time() -> None:
+    # Tools that read annotations at run time (typing.get_type_hints,
+    # pydantic, documentation generators) need every alias defined there.
+    for cls in (Problem, Weights, Obstacle, Gains, SolveResult):
+        hints = typing.get_type_hints(cls)
+        assert hints, cls
+    assert typing.get_type_hints(Problem)["initial_controls"] == typing.Optional[FloatRows]
+    assert typing.get_type_hints(Obstacle)["center"] == Floats

@@ -35,6 +35,8 @@ from .errors import (
 )
 from .models import (
     SOLVE_STATUSES,
+    FloatRows,
+    Floats,
     Gains,
     Obstacle,
     OutputOptions,
@@ -61,6 +63,8 @@ __all__ = [
     "SolveResult",
     "Gains",
     "TraceEntry",
+    "Floats",
+    "FloatRows",
     # errors
     "ApiError",
     "FieldError",

@@ -22,15 +22,20 @@ from __future__ import annotations
 from dataclasses import dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
+# A vector field accepts a list or tuple of numbers, or a numpy array (sent
+# through its ``tolist``); a matrix field rows of those, or a 2-D array.
+# Type checkers see numpy in the alias, so that ``mypy --strict`` accepts
+# arrays, which are not ``Sequence``s to it. At run time numpy is optional,
+# so the aliases leave it out there and ``typing.get_type_hints`` still
+# resolves every field without importing numpy.
 if TYPE_CHECKING:  # pragma: no cover
     import numpy
 
-#: A vector field's accepted types: a list or tuple of numbers, or a numpy
-#: array (sent through its ``tolist``). Spelled out so that ``mypy --strict``
-#: accepts numpy arrays, which are not ``Sequence``s to a type checker.
-Floats = Union[Sequence[float], "numpy.ndarray[Any, Any]"]
-#: A matrix field's accepted types: rows of :data:`Floats`, or a 2-D numpy array.
-FloatRows = Union[Sequence[Floats], "numpy.ndarray[Any, Any]"]
+    Floats = Union[Sequence[float], numpy.ndarray[Any, Any]]
+    FloatRows = Union[Sequence[Floats], numpy.ndarray[Any, Any]]
+else:
+    Floats = Sequence[float]
+    FloatRows = Sequence[Sequence[float]]
 
 __all__ = [
     "SOLVE_STATUSES",
@@ -44,6 +49,8 @@ __all__ = [
     "Gains",
     "SolveResult",
     "to_json_value",
+    "Floats",
+    "FloatRows",
 ]
 
 #: Every ``status`` a 200 answer may carry. Each one comes with the best trajectory found.
