@@ -145,7 +145,9 @@ fn gains_report_the_regularization_they_were_built_with() {
     let cancel = AtomicBool::new(false);
     let seed = solve(&spec(json!({})), None, &cancel).unwrap();
     assert_eq!(seed.status.as_str(), "converged");
-    assert_eq!(seed.gains.expect("seed gains").regularization, 0.0);
+    let seed_gains = seed.gains.expect("seed gains");
+    assert_eq!(seed_gains.regularization, 0.0);
+    assert!(!seed_gains.about_previous_iterate);
 
     let example = std::fs::read("examples/three_obstacles.json").unwrap();
     let three = parse(&example).unwrap();
@@ -159,6 +161,7 @@ fn gains_report_the_regularization_they_were_built_with() {
         "{}",
         wire["gains"]["regularization"]
     );
+    assert_eq!(wire["gains"]["about_previous_iterate"], json!(false));
 }
 
 /// `solve -o -` puts the result JSON alone on standard output (so it pipes

@@ -49,6 +49,7 @@ def test_seed_problem_gains(seed_result: SolveResult) -> None:
     assert len(gains.feedforward) == 100 and all(len(d) == 2 for d in gains.feedforward)
     # The seed converges through the unregularised pass: undamped gains.
     assert gains.regularization == 0.0
+    assert gains.about_previous_iterate is False
     # On the nominal trajectory the feedback policy reproduces the nominal controls.
     k = 42
     state, control = seed_result.states[k], seed_result.controls[k]

@@ -505,6 +505,30 @@ fn a_solve_that_converges_at_the_iteration_cap_is_converged() {
     );
 }
 
+/// The textbook gains `−(Q_uu + μI)⁻¹(Q_ux, Q_u)` at the last knot about
+/// the solver's returned trajectory, where `V' = l_f` exactly.
+#[allow(non_snake_case)]
+fn last_knot_gains(
+    problem: &Seed,
+    solver: &Solver<6, 2>,
+    mu: f64,
+) -> (nalgebra::SMatrix<f64, 2, 6>, Vector2<f64>) {
+    let n = problem.horizon;
+    let (x, u) = (solver.states()[n - 1], solver.controls()[n - 1]);
+    let (A, B) = problem.dynamics.linearize(&x, &u);
+    let mut l = ilqr::StageExpansion::zeros();
+    problem.cost.stage_expand(n - 1, &x, &u, &mut l);
+    let mut f = ilqr::TerminalExpansion::zeros();
+    problem.cost.terminal_expand(&solver.states()[n], &mut f);
+    let Q_u = l.l_u + B.transpose() * f.l_x;
+    let Q_uu = l.l_uu + B.transpose() * f.l_xx * B;
+    let Q_ux = l.l_ux + B.transpose() * f.l_xx * A;
+    let inv = (Q_uu + nalgebra::Matrix2::identity() * mu)
+        .try_inverse()
+        .expect("Q_uu is positive definite at the last knot");
+    (-inv * Q_ux, -inv * Q_u)
+}
+
 /// `Summary::gains_regularization` is the μ the returned gains were built
 /// with: at the last knot, where `V' = l_f` exactly, `K` and `d` equal the
 /// textbook `−(Q_uu + μI)⁻¹(Q_ux, Q_u)` about the returned trajectory with
@@ -531,25 +555,14 @@ fn the_reported_gains_regularization_is_the_one_the_gains_were_built_with() {
         ("three obstacles", three, true),
     ] {
         let (solver, s) = solve_problem(&problem, &options);
-        assert!(s.has_gains, "{name}: {s:?}");
+        assert!(
+            s.has_gains && !s.gains_about_previous_iterate,
+            "{name}: {s:?}"
+        );
         assert_eq!(s.gains_regularization > 0.0, damped, "{name}: {s:?}");
 
         let n = problem.horizon;
-        let (x, u) = (solver.states()[n - 1], solver.controls()[n - 1]);
-        let (A, B) = problem.dynamics.linearize(&x, &u);
-        let mut l = ilqr::StageExpansion::zeros();
-        problem.cost.stage_expand(n - 1, &x, &u, &mut l);
-        let mut f = ilqr::TerminalExpansion::zeros();
-        problem.cost.terminal_expand(&solver.states()[n], &mut f);
-        let Q_u = l.l_u + B.transpose() * f.l_x;
-        let Q_uu = l.l_uu + B.transpose() * f.l_xx * B;
-        let Q_ux = l.l_ux + B.transpose() * f.l_xx * A;
-        let gains = |mu: f64| {
-            let inv = (Q_uu + nalgebra::Matrix2::identity() * mu)
-                .try_inverse()
-                .expect("Q_uu is positive definite at the last knot");
-            (-inv * Q_ux, -inv * Q_u)
-        };
+        let gains = |mu: f64| last_knot_gains(&problem, &solver, mu);
         let (K, d) = gains(s.gains_regularization);
         let (K_got, d_got) = (solver.feedback()[n - 1], solver.feedforward()[n - 1]);
         let err = (K_got - K).amax() / K.amax();
@@ -568,4 +581,47 @@ fn the_reported_gains_regularization_is_the_one_the_gains_were_built_with() {
             assert!(off > 1e-4, "{name}: μ = 0 would match too ({off:e})");
         }
     }
+}
+
+/// Gains about the iterate before the returned one are flagged. With
+/// `mu_max = 10` the seed takes one step, then the backward pass about the
+/// new iterate fails at every μ up to 10: `NoProgress` after 1 iteration.
+/// The workspace still holds the first iterate's gains, which differ from
+/// the new iterate's own (checked at the last knot), so
+/// `gains_about_previous_iterate` must say so. Other exits at the same
+/// point (a time limit or cancellation while μ is raised) take the same
+/// path.
+#[test]
+#[allow(non_snake_case)]
+fn gains_about_the_previous_iterate_are_flagged() {
+    let problem = seed_problem(100, 0.05);
+    let options = Options {
+        mu_max: 10.0,
+        ..Options::default()
+    };
+    let (solver, s) = solve_problem(&problem, &options);
+    assert_eq!((s.status, s.iterations), (Status::NoProgress, 1), "{s:?}");
+    assert!(s.cost < s.initial_cost, "the step was accepted: {s:?}");
+    assert!(s.has_gains && s.gains_about_previous_iterate, "{s:?}");
+
+    // What the stale gains would have claimed, against the truth.
+    let (K, d) = last_knot_gains(&problem, &solver, s.gains_regularization);
+    let n = problem.horizon;
+    let k_off = (solver.feedback()[n - 1] - K).amax() / K.amax();
+    let d_off = (solver.feedforward()[n - 1] - d).amax() / d.amax();
+    println!("stale gains at the last knot: K off by {k_off:.3}, d off by {d_off:.3}");
+    assert!(
+        k_off > 0.01 && d_off > 0.1,
+        "the stale gains are not off ({k_off:e}, {d_off:e}): is the test still testing?"
+    );
+
+    // One iteration with a cap instead ends at the same trajectory with
+    // its own backward pass done: gains reported.
+    let capped = Options {
+        max_iterations: 1,
+        ..Options::default()
+    };
+    let (capped_solver, c) = solve_problem(&problem, &capped);
+    assert_eq!(capped_solver.controls(), solver.controls());
+    assert!(c.has_gains && !c.gains_about_previous_iterate, "{c:?}");
 }

@@ -426,11 +426,19 @@ class Gains:
             (``Q_uu + μI``): 0 for the undamped Riccati gains, larger for
             damped, more cautious ones. ``None`` from a service too old to
             report it.
+        about_previous_iterate: ``False`` when the gains are about the
+            returned trajectory (almost always). ``True`` when the solve
+            stopped (``time_limit``, ``cancelled``, ``no_progress``) while
+            the backward pass about its latest iterate was still running:
+            the gains are then the previous iterate's, one step away (``K``
+            close, ``feedforward`` not the next step). ``None`` from a
+            service too old to report it.
     """
 
     feedback: List[List[List[float]]]
     feedforward: List[List[float]]
     regularization: Optional[float] = None
+    about_previous_iterate: Optional[bool] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/gains") -> "Gains":
@@ -444,7 +452,15 @@ class Gains:
         feedforward = _matrix(_require(data, "feedforward", where), f"{where}/feedforward", CONTROL_DIM)
         raw_mu = data.get("regularization")
         regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
-        return cls(feedback=feedback, feedforward=feedforward, regularization=regularization)
+        raw_prev = data.get("about_previous_iterate")
+        if raw_prev is not None and not isinstance(raw_prev, bool):
+            raise ValueError(f"{where}/about_previous_iterate: expected a boolean")
+        return cls(
+            feedback=feedback,
+            feedforward=feedforward,
+            regularization=regularization,
+            about_previous_iterate=raw_prev,
+        )
 
     def control(self, k: int, state: Floats, nominal_state: Floats,
                 nominal_control: Floats) -> List[float]:
