@@ -121,13 +121,13 @@ fn the_spec_states_the_defaults_the_code_applies() {
     assert_eq!(checked, 19);
 }
 
-/// The answer never holds `null` (left-out members are absent, and every
-/// number is finite), so no schema reachable from `SolveResult` may admit
-/// it: a client generated from the spec would otherwise type `gains` and
-/// `trace` as nullable and make every caller check for a value that never
-/// comes.
+/// The answers never hold `null` (left-out members are absent, and every
+/// number is finite), so no schema reachable from `SolveResult` or the
+/// problem+json `Problem` may admit it: a client generated from the spec
+/// would otherwise type `gains`, `trace` or `retry_after` as nullable and
+/// make every caller check for a value that never comes.
 #[test]
-fn nothing_in_the_result_schema_admits_null() {
+fn nothing_in_the_answer_schemas_admits_null() {
     let spec: serde_json::Value =
         serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
     let schemas = &spec["components"]["schemas"];
@@ -173,16 +173,17 @@ fn nothing_in_the_result_schema_admits_null() {
             _ => {}
         }
     }
-    let (mut seen, mut out) = (vec!["SolveResult".to_string()], Vec::new());
-    nulls(
-        &schemas["SolveResult"],
-        schemas,
-        "SolveResult".into(),
-        &mut seen,
-        &mut out,
+    let (mut seen, mut out) = (
+        vec!["SolveResult".to_string(), "Problem".to_string()],
+        Vec::new(),
     );
+    for root in ["SolveResult", "Problem"] {
+        nulls(&schemas[root], schemas, root.into(), &mut seen, &mut out);
+    }
     assert!(
-        seen.contains(&"Gains".to_string()) && seen.contains(&"TraceEntry".to_string()),
+        ["Gains", "TraceEntry", "FieldError"]
+            .iter()
+            .all(|s| seen.contains(&s.to_string())),
         "{seen:?}"
     );
     assert!(

@@ -33,11 +33,14 @@ pub struct Problem {
     pub errors: Vec<FieldError>,
     /// For validation errors past that cap: how many more invalid values
     /// were found than `errors` lists. Absent when `errors` lists them all.
+    // Left out when None, never `null` (as `retry_after`).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false, minimum = 1)]
     pub unlisted_errors: Option<u64>,
     /// Seconds to wait before retrying (overload only; also sent as the
     /// `Retry-After` header).
     #[serde(default, skip_serializing_if = "Option::is_none")]
+    #[schema(nullable = false, minimum = 1)]
     pub retry_after: Option<u64>,
 }
 
