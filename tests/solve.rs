@@ -250,62 +250,45 @@ fn the_cli_output_file_is_written_only_with_a_result() {
         path
     };
     let bad = problem("bad.json", r#"{"dt": -1}"#);
+    // `solve [PROBLEM] -o OUT`, standard output captured.
+    let solve_to = |input: Option<&std::path::Path>, out: &std::path::Path| {
+        let mut cmd = Command::new(bin);
+        cmd.arg("solve");
+        cmd.args(input);
+        cmd.arg("-o")
+            .arg(out)
+            .stdout(Stdio::piped())
+            .output()
+            .unwrap()
+    };
+    let succeeded = |out: &std::process::Output| {
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+    };
 
     // Invalid problem: an existing output keeps its content, a new one is
     // not created.
     let existing = dir.join("existing.json");
     std::fs::write(&existing, "keep me").unwrap();
-    let out = Command::new(bin)
-        .arg("solve")
-        .arg(&bad)
-        .arg("-o")
-        .arg(&existing)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(solve_to(Some(&bad), &existing).status.code(), Some(2));
     assert_eq!(std::fs::read_to_string(&existing).unwrap(), "keep me");
     let fresh = dir.join("fresh.json");
-    let out = Command::new(bin)
-        .arg("solve")
-        .arg(&bad)
-        .arg("-o")
-        .arg(&fresh)
-        .output()
-        .unwrap();
-    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(solve_to(Some(&bad), &fresh).status.code(), Some(2));
     assert!(!fresh.exists(), "an invalid problem left {fresh:?}");
 
     // A valid one overwrites the existing file with the whole result.
-    let out = Command::new(bin)
-        .args(["solve", "-o"])
-        .arg(&existing)
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{out:?}");
+    succeeded(&solve_to(None, &existing));
     let written: serde_json::Value =
         serde_json::from_str(&std::fs::read_to_string(&existing).unwrap()).unwrap();
     assert_eq!(written["status"], "converged");
 
     // Devices: /dev/null swallows it, /dev/stdout carries it into a pipe.
-    let out = Command::new(bin)
-        .args(["solve", "-o", "/dev/null"])
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
-    let out = Command::new(bin)
-        .args(["solve", "-o", "/dev/stdout"])
-        .stdout(Stdio::piped())
-        .output()
-        .unwrap();
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    succeeded(&solve_to(None, "/dev/null".as_ref()));
+    let out = solve_to(None, "/dev/stdout".as_ref());
+    succeeded(&out);
     let stdout = String::from_utf8(out.stdout).unwrap();
     let json_start = stdout.find("{\n").expect("the JSON follows the summary");
     let piped: serde_json::Value = serde_json::from_str(&stdout[json_start..]).unwrap();
