@@ -116,28 +116,18 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         }
     };
     // Check the output before solving, so that an unwritable path fails at
-    // once rather than after a long solve: open it for writing without
-    // truncating, and remove it again if this made it. So nothing is left
-    // behind if the solve fails or the process is killed, and an existing
-    // file keeps its content until the result is written. The file is
-    // opened again to write, which also works for `/dev/null`, `/dev/stdout`
-    // and pipes (`-o >(jq .)`), where truncation is not possible.
+    // once rather than after a long solve.
     let out_path = output.as_ref().filter(|p| p.as_os_str() != "-");
-    if let Some(path) = out_path {
-        let existed = path.exists();
-        let probe = std::fs::OpenOptions::new()
-            .write(true)
-            .create(true)
-            .truncate(false)
-            .open(path);
-        if let Err(e) = probe {
-            eprintln!("error: cannot write {}: {e}", path.display());
+    let target = match out_path.map(|p| OutputTarget::open(p)).transpose() {
+        Ok(t) => t,
+        Err(e) => {
+            let path = out_path
+                .map(|p| p.display().to_string())
+                .unwrap_or_default();
+            eprintln!("error: cannot write {path}: {e}");
             return ExitCode::FAILURE;
         }
-        if !existed {
-            let _ = std::fs::remove_file(path);
-        }
-    }
+    };
     let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
         Ok(r) => r,
         Err(e) => {
@@ -162,10 +152,9 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
                 return ExitCode::FAILURE;
             }
         };
-        let written = match out_path {
+        let written = match target {
             None => writeln!(std::io::stdout(), "{json}"),
-            Some(path) => std::fs::File::create(path)
-                .and_then(|mut file| file.write_all(format!("{json}\n").as_bytes())),
+            Some(target) => target.write(format!("{json}\n").as_bytes()),
         };
         if let Err(e) = written {
             eprintln!("error: cannot write {}: {e}", path.display());
@@ -173,6 +162,78 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         }
     }
     ExitCode::SUCCESS
+}
+
+/// Where `solve -o PATH` writes the result, settled before the solve.
+enum OutputTarget {
+    /// A regular file, existing or not: checked by opening it for writing
+    /// without truncating (and removing it again if that created it, through
+    /// any symlink), so nothing is left behind if the solve fails or the
+    /// process is killed and an existing file keeps its content until the
+    /// result is written, by creating it anew.
+    File(PathBuf),
+    /// This process's own standard output under another name
+    /// (`-o /dev/stdout`, whether it is a terminal, a pipe or a file it was
+    /// redirected to): written through it, after the summary, without
+    /// truncating what was written there before.
+    Stdout,
+    /// Anything else that exists (`/dev/null`, a named pipe, `>(jq .)`):
+    /// opened once, now, and kept open, since a pipe's reader sees the end
+    /// of its input when the writer closes it, and nothing there can be
+    /// truncated.
+    Stream(std::fs::File),
+}
+
+impl OutputTarget {
+    fn open(path: &std::path::Path) -> std::io::Result<Self> {
+        use std::os::unix::fs::MetadataExt;
+        let existing = match std::fs::metadata(path) {
+            Ok(m) => Some(m),
+            Err(e) if e.kind() == std::io::ErrorKind::NotFound => None,
+            Err(e) => return Err(e),
+        };
+        let stdout_id = stdout_metadata().map(|m| (m.dev(), m.ino()));
+        match existing {
+            Some(m) if Some((m.dev(), m.ino())) == stdout_id => Ok(Self::Stdout),
+            Some(m) if !m.is_file() => std::fs::OpenOptions::new()
+                .write(true)
+                .open(path)
+                .map(Self::Stream),
+            _ => {
+                std::fs::OpenOptions::new()
+                    .write(true)
+                    .create(true)
+                    .truncate(false)
+                    .open(path)?;
+                if existing.is_none() {
+                    // Through a dangling symlink the file made is the
+                    // link's target: remove that, not the link.
+                    let made = std::fs::canonicalize(path).unwrap_or_else(|_| path.to_owned());
+                    let _ = std::fs::remove_file(made);
+                }
+                Ok(Self::File(path.to_owned()))
+            }
+        }
+    }
+
+    fn write(self, bytes: &[u8]) -> std::io::Result<()> {
+        match self {
+            Self::File(path) => std::fs::File::create(path)?.write_all(bytes),
+            Self::Stdout => {
+                let mut out = std::io::stdout().lock();
+                out.write_all(bytes)?;
+                out.flush()
+            }
+            Self::Stream(mut file) => file.write_all(bytes),
+        }
+    }
+}
+
+/// The file behind standard output, if it can be inspected.
+fn stdout_metadata() -> Option<std::fs::Metadata> {
+    use std::os::fd::AsFd;
+    let fd = std::io::stdout().as_fd().try_clone_to_owned().ok()?;
+    std::fs::File::from(fd).metadata().ok()
 }
 
 fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, Vec<String>> {

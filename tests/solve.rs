@@ -236,8 +236,9 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
 
 /// `-o FILE` is checked before the solve but written only after it: an
 /// invalid problem leaves an existing file as it was and creates none, a
-/// solve killed midway leaves nothing behind, and devices and pipes
-/// (`/dev/null`, `/dev/stdout`), which cannot be truncated, take the JSON.
+/// solve killed midway leaves nothing behind (through a dangling symlink
+/// neither), and devices and pipes (`/dev/null`, `/dev/stdout` into a pipe
+/// or a file opened for appending, a named pipe) take the JSON.
 #[test]
 fn the_cli_output_file_is_written_only_with_a_result() {
     use std::process::{Command, Stdio};
@@ -294,8 +295,80 @@ fn the_cli_output_file_is_written_only_with_a_result() {
     let piped: serde_json::Value = serde_json::from_str(&stdout[json_start..]).unwrap();
     assert_eq!(piped["status"], "converged");
 
-    // Killed during a long solve (about 2.5 s: N = 10000, 100 obstacles):
-    // no output file appears.
+    // /dev/stdout redirected to a file opened for appending: what was there,
+    // the summary and the JSON all stay, in that order (no truncation).
+    let log = dir.join("log.txt");
+    std::fs::write(&log, "earlier line\n").unwrap();
+    let appending = std::fs::OpenOptions::new().append(true).open(&log).unwrap();
+    let status = Command::new(bin)
+        .args(["solve", "-o", "/dev/stdout"])
+        .stdout(appending)
+        .status()
+        .unwrap();
+    assert!(status.success());
+    let text = std::fs::read_to_string(&log).unwrap();
+    assert!(
+        text.starts_with("earlier line\nstatus           converged"),
+        "{text}"
+    );
+    let appended: serde_json::Value =
+        serde_json::from_str(&text[text.find("{\n").unwrap()..]).unwrap();
+    assert_eq!(appended["status"], "converged");
+
+    // A named pipe with one reader gets the JSON: the check before the solve
+    // must not close the pipe, or the reader sees the end of its input and
+    // the write after the solve blocks for ever. Bounded, so that a
+    // regression fails instead of hanging.
+    let fifo = dir.join("fifo");
+    assert!(
+        Command::new("mkfifo")
+            .arg(&fifo)
+            .status()
+            .unwrap()
+            .success()
+    );
+    let reader = {
+        let fifo = fifo.clone();
+        std::thread::spawn(move || std::fs::read_to_string(fifo).unwrap())
+    };
+    let mut child = Command::new(bin)
+        .args(["solve", "-o"])
+        .arg(&fifo)
+        .stdout(Stdio::null())
+        .spawn()
+        .unwrap();
+    let deadline = std::time::Instant::now() + std::time::Duration::from_secs(30);
+    let status = loop {
+        if let Some(status) = child.try_wait().unwrap() {
+            break status;
+        }
+        if std::time::Instant::now() > deadline {
+            child.kill().unwrap();
+            // Unblock the reader thread, then fail.
+            let _ = std::fs::OpenOptions::new().write(true).open(&fifo);
+            panic!("solve -o FIFO hung");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    };
+    assert!(status.success());
+    let through_fifo: serde_json::Value = serde_json::from_str(&reader.join().unwrap()).unwrap();
+    assert_eq!(through_fifo["status"], "converged");
+
+    // A dangling symlink: written through, the link kept; an invalid
+    // problem neither replaces the link nor creates its target.
+    let link = dir.join("link.json");
+    let link_target = dir.join("link-target.json");
+    std::os::unix::fs::symlink(&link_target, &link).unwrap();
+    let is_link = |p: &std::path::Path| p.symlink_metadata().unwrap().file_type().is_symlink();
+    assert_eq!(solve_to(Some(&bad), &link).status.code(), Some(2));
+    assert!(is_link(&link) && !link_target.exists());
+    succeeded(&solve_to(None, &link));
+    assert!(is_link(&link));
+    let through_link: serde_json::Value =
+        serde_json::from_str(&std::fs::read_to_string(&link_target).unwrap()).unwrap();
+    assert_eq!(through_link["status"], "converged");
+
+    // A long solve to kill (about 2.5 s: N = 10000, 100 obstacles).
     let obstacles: Vec<_> = (0..100)
         .map(
             |i| json!({"center": [f64::from(i % 10) - 2.5, f64::from(i / 10) - 0.5], "weight": 10}),
@@ -307,24 +380,31 @@ fn the_cli_output_file_is_written_only_with_a_result() {
                 "solver": {"tolerance": 0, "max_iterations": 10000}})
         .to_string(),
     );
+    // Killed: neither a new file nor, through a dangling link, its target.
+    let dangling = dir.join("dangling.json");
+    let dangling_target = dir.join("dangling-target.json");
+    std::os::unix::fs::symlink(&dangling_target, &dangling).unwrap();
     let killed = dir.join("killed.json");
-    let mut child = Command::new(bin)
-        .arg("solve")
-        .arg(&long)
-        .arg("-o")
-        .arg(&killed)
-        .stdout(Stdio::null())
-        .stderr(Stdio::null())
-        .spawn()
-        .unwrap();
-    std::thread::sleep(std::time::Duration::from_millis(300));
-    assert!(
-        child.try_wait().unwrap().is_none(),
-        "the long solve ended early"
-    );
-    child.kill().unwrap();
-    child.wait().unwrap();
+    for out in [&killed, &dangling] {
+        let mut child = Command::new(bin)
+            .arg("solve")
+            .arg(&long)
+            .arg("-o")
+            .arg(out)
+            .stdout(Stdio::null())
+            .stderr(Stdio::null())
+            .spawn()
+            .unwrap();
+        std::thread::sleep(std::time::Duration::from_millis(300));
+        assert!(
+            child.try_wait().unwrap().is_none(),
+            "the long solve ended early"
+        );
+        child.kill().unwrap();
+        child.wait().unwrap();
+    }
     assert!(!killed.exists(), "a killed solve left {killed:?}");
+    assert!(is_link(&dangling) && !dangling_target.exists());
     let _ = std::fs::remove_dir_all(&dir);
 }
 
