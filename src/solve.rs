@@ -129,9 +129,9 @@ pub struct Gains {
     /// `cancelled` or `no_progress`) while the backward pass about its
     /// latest iterate was still raising the regularisation: the gains are
     /// then the previous iterate's, one accepted step away. `K` is still a
-    /// nearby policy (off by 6–9% at the last knot in the cases measured),
-    /// but `feedforward` is not the next step. Common with long horizons
-    /// under a tight `time_limit_ms`.
+    /// nearby policy (0–9% off at the last knot in the cases measured), but
+    /// `feedforward` can be far from the next step (under 1% to over 1000%
+    /// off). Common with long horizons under a tight `time_limit_ms`.
     pub about_previous_iterate: bool,
 }
 

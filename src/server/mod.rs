@@ -84,7 +84,8 @@ pub struct Config {
     pub max_horizon: usize,
     /// Largest accepted request body, in bytes, at least 4096 (the default
     /// problem takes 0.5 KB, 0.87 KB pretty-printed; N rows of
-    /// `initial_controls` add 15–40 bytes each).
+    /// `initial_controls` add 14–66 bytes each, from short numbers in compact
+    /// JSON to full precision pretty-printed).
     #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
     pub max_body_bytes: usize,
     /// Seconds in-flight solves get to finish on shutdown before they are

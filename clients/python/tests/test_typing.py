@@ -50,10 +50,23 @@ def test_the_feedback_policy_takes_numpy_states() -> None:
 
 
 def test_type_hints_resolve_at_run_time() -> None:
-    # Tools that read annotations at run time (typing.get_type_hints,
-    # pydantic, documentation generators) need every alias defined there.
+    # Tools that read field annotations at run time (typing.get_type_hints,
+    # dataclass introspection) need every alias defined there. At run time
+    # the aliases say Sequence; numpy arrays are accepted all the same.
     for cls in (Problem, Weights, Obstacle, Gains, SolveResult):
         hints = typing.get_type_hints(cls)
         assert hints, cls
     assert typing.get_type_hints(Problem)["initial_controls"] == typing.Optional[FloatRows]
     assert typing.get_type_hints(Obstacle)["center"] == Floats
+
+
+def test_gains_fields_are_parsed_strictly() -> None:
+    base = {"feedback": [[[0.0] * 6] * 2], "feedforward": [[0.0, 0.0]]}
+    old = Gains.from_dict(base)  # an older service sends neither field
+    assert (old.regularization, old.about_previous_iterate) == (None, None)
+    full = Gains.from_dict({**base, "regularization": 2.5, "about_previous_iterate": True})
+    assert (full.regularization, full.about_previous_iterate) == (2.5, True)
+    with pytest.raises(ValueError, match=r"/gains/about_previous_iterate: expected a boolean, got 'true'"):
+        Gains.from_dict({**base, "about_previous_iterate": "true"})
+    with pytest.raises(ValueError, match=r"/gains/regularization"):
+        Gains.from_dict({**base, "regularization": "x"})

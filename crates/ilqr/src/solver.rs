@@ -208,10 +208,11 @@ pub struct Summary {
     /// Whether the gains are about the iterate before the returned one: the
     /// solve stopped (a time limit, cancellation or [`Status::NoProgress`])
     /// while the backward pass about its latest iterate was still raising
-    /// μ. `K` is then the policy of a trajectory one step away (off by 6–9%
-    /// at the last knot in the cases measured) and `d` is not the next
-    /// step (off by 70–100%). False whenever the gains were computed about
-    /// the returned trajectory, which every other exit guarantees.
+    /// μ. `K` is then the policy of a trajectory one step away (0–9% off at
+    /// the last knot in the cases measured) and `d` can be far from the
+    /// next step (under 1% to over 1000% off). False whenever the gains
+    /// were computed about the returned trajectory, which every other exit
+    /// guarantees.
     pub gains_about_previous_iterate: bool,
     /// The regularisation μ of the backward pass that produced the gains
     /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains

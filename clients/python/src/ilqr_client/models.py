@@ -454,7 +454,7 @@ class Gains:
         regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
         raw_prev = data.get("about_previous_iterate")
         if raw_prev is not None and not isinstance(raw_prev, bool):
-            raise ValueError(f"{where}/about_previous_iterate: expected a boolean")
+            raise ValueError(f"{where}/about_previous_iterate: expected a boolean, got {raw_prev!r}")
         return cls(
             feedback=feedback,
             feedforward=feedforward,
