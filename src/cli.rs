@@ -118,15 +118,15 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
     // Check the output before solving, so that an unwritable path fails at
     // once rather than after a long solve.
     let out_path = output.as_ref().filter(|p| p.as_os_str() != "-");
-    let target = match out_path.map(|p| OutputTarget::open(p)).transpose() {
-        Ok(t) => t,
-        Err(e) => {
-            let path = out_path
-                .map(|p| p.display().to_string())
-                .unwrap_or_default();
-            eprintln!("error: cannot write {path}: {e}");
-            return ExitCode::FAILURE;
-        }
+    let target = match out_path {
+        None => None,
+        Some(path) => match OutputTarget::open(path) {
+            Ok(t) => Some(t),
+            Err(e) => {
+                eprintln!("error: cannot write {}: {e}", path.display());
+                return ExitCode::FAILURE;
+            }
+        },
     };
     let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
         Ok(r) => r,

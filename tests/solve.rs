@@ -205,19 +205,6 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
         "error: /dt: must be a positive number of seconds, at most 10, got 1e300\n"
     );
 
-    // An unwritable output fails before the solve (no summary printed).
-    let unwritable = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
-        .args(["solve", "-o", "/nonexistent-dir/r.json"])
-        .output()
-        .unwrap();
-    assert_eq!(unwritable.status.code(), Some(1));
-    assert!(unwritable.stdout.is_empty(), "solved first");
-    assert!(
-        String::from_utf8(unwritable.stderr)
-            .unwrap()
-            .starts_with("error: cannot write /nonexistent-dir/r.json: "),
-    );
-
     // Past the 100 listed errors, one line counts the rest.
     let rows = vec!["[1e7, 1e7]"; 5000].join(",");
     let flood = run(&format!(
@@ -235,7 +222,7 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
 }
 
 /// `-o FILE` is checked before the solve but written only after it: an
-/// invalid problem leaves an existing file as it was and creates none, a
+/// unwritable path fails at once, an invalid problem leaves an existing file as it was and creates none, a
 /// solve killed midway leaves nothing behind (through a dangling symlink
 /// neither), and devices and pipes (`/dev/null`, `/dev/stdout` into a pipe
 /// or a file opened for appending, a named pipe) take the JSON.
@@ -269,6 +256,16 @@ fn the_cli_output_file_is_written_only_with_a_result() {
             String::from_utf8_lossy(&out.stderr)
         );
     };
+
+    // An unwritable output fails before the solve (no summary printed).
+    let unwritable = solve_to(None, "/nonexistent-dir/r.json".as_ref());
+    assert_eq!(unwritable.status.code(), Some(1));
+    assert!(unwritable.stdout.is_empty(), "solved first");
+    assert!(
+        String::from_utf8(unwritable.stderr)
+            .unwrap()
+            .starts_with("error: cannot write /nonexistent-dir/r.json: "),
+    );
 
     // Invalid problem: an existing output keeps its content, a new one is
     // not created.

@@ -131,6 +131,13 @@ def _int(value: Any, where: str) -> int:
     return value
 
 
+def _bool(value: Any, where: str) -> bool:
+    """A JSON boolean."""
+    if not isinstance(value, bool):
+        raise ValueError(f"{where}: expected a boolean, got {value!r}")
+    return value
+
+
 def _list(value: Any, where: str) -> List[Any]:
     if not isinstance(value, list):
         raise ValueError(f"{where}: expected an array, got {type(value).__name__}")
@@ -453,13 +460,12 @@ class Gains:
         raw_mu = data.get("regularization")
         regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
         raw_prev = data.get("about_previous_iterate")
-        if raw_prev is not None and not isinstance(raw_prev, bool):
-            raise ValueError(f"{where}/about_previous_iterate: expected a boolean, got {raw_prev!r}")
+        about_previous_iterate = None if raw_prev is None else _bool(raw_prev, f"{where}/about_previous_iterate")
         return cls(
             feedback=feedback,
             feedforward=feedforward,
             regularization=regularization,
-            about_previous_iterate=raw_prev,
+            about_previous_iterate=about_previous_iterate,
         )
 
     def control(self, k: int, state: Floats, nominal_state: Floats,
