@@ -196,11 +196,11 @@ pub struct SolverSpec {
     /// and between the backward passes that raise the regularisation, so
     /// the answer can come one linearisation, backward pass and rollout
     /// late. That grows with N × (1 + obstacles): 0.1–3.6 ms at N = 10000
-    /// with one obstacle, 2–22 ms with 100 (measured; the linearisation evaluates every
-    /// obstacle at every knot; it and the backward pass are what keep the
-    /// returned gains about the returned trajectory). At most the service's maximum (60000 unless
-    /// configured). Unset: the service's default (10000 unless configured;
-    /// the CLI has none).
+    /// with one obstacle, 2–22 ms with 100 (measured; the linearisation
+    /// evaluates every obstacle at every knot; it and the backward pass are
+    /// what keep the returned gains about the returned trajectory). At most
+    /// the service's maximum (60000 unless configured). Unset: the service's
+    /// default (10000 unless configured; the CLI has none).
     #[serde(deserialize_with = "de_opt_count")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,

@@ -118,10 +118,9 @@ pub struct Gains {
     pub feedforward: Vec<[f64; 2]>,
     /// The regularisation μ of the backward pass that produced these gains
     /// (`Q_uu + μI` in place of `Q_uu`, in the cost's units per N²). 0: the
-    /// undamped Riccati gains; larger values
-    /// give smaller, more cautious `K` and `d`. A solve that converges
-    /// usually ends at 0; one stopped by a cap, a budget or near an
-    /// obstacle's steep centre may not.
+    /// undamped Riccati gains; larger values give smaller, more cautious `K`
+    /// and `d`. A solve that converges usually ends at 0; one stopped by a
+    /// cap, a budget or near an obstacle's steep centre may not.
     #[schema(minimum = 0.0)]
     pub regularization: f64,
     /// False (almost always): the gains were computed about the returned
@@ -129,7 +128,7 @@ pub struct Gains {
     /// `cancelled` or `no_progress`) while the backward pass about its
     /// latest iterate was still raising the regularisation: the gains are
     /// then the previous iterate's, one accepted step away. `K` is still a
-    /// nearby policy (0–9% off at the last knot in the cases measured), but
+    /// nearby policy (0–12% off at the last knot in the cases measured), but
     /// `feedforward` can be far from the next step (under 1% to over 1000%
     /// off). Common with long horizons under a tight `time_limit_ms`.
     pub about_previous_iterate: bool,

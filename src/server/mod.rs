@@ -46,8 +46,8 @@ use pool::Pool;
 
 /// Smallest `--max-body-bytes` accepted: room for the default problem
 /// with up to about 35 obstacles pretty-printed (0.87 KB with one), or
-/// about 95 compact. Problems with `initial_controls` or many obstacles need more
-/// (100 obstacles: 4.2 KB compact, 9.6 KB pretty-printed).
+/// about 95 compact. Problems with `initial_controls` or many obstacles
+/// need more (100 obstacles: 4.2 KB compact, 9.6 KB pretty-printed).
 pub const MIN_BODY_BYTES: usize = 4096;
 
 /// Service configuration: flags, each also read from an environment variable.

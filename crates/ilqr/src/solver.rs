@@ -208,7 +208,7 @@ pub struct Summary {
     /// Whether the gains are about the iterate before the returned one: the
     /// solve stopped (a time limit, cancellation or [`Status::NoProgress`])
     /// while the backward pass about its latest iterate was still raising
-    /// μ. `K` is then the policy of a trajectory one step away (0–9% off at
+    /// μ. `K` is then the policy of a trajectory one step away (0–12% off at
     /// the last knot in the cases measured) and `d` can be far from the
     /// next step (under 1% to over 1000% off). False whenever the gains
     /// were computed about the returned trajectory, which every other exit
