@@ -68,7 +68,7 @@ pub struct ProblemSpec {
     pub dt: f64,
     /// Number of control steps N (the trajectory has N + 1 states). Default
     /// 100; at most 10000 (the service may be configured lower).
-    #[serde(deserialize_with = "de_count")]
+    #[serde(deserialize_with = "de_horizon")]
     #[schema(default = 100, minimum = 1, maximum = 10000)]
     pub horizon: usize,
     /// Initial state `[x, y, θ, ẋ, ẏ, θ̇]` in m, m, rad, m/s, m/s, rad/s.
@@ -183,7 +183,7 @@ pub struct SolverSpec {
     /// Iteration limit, at most 10000. Default 500: the seed converges in
     /// 16, problems with several obstacles can take a few hundred, and the
     /// time budget bounds the cost of a generous limit.
-    #[serde(deserialize_with = "de_count")]
+    #[serde(deserialize_with = "de_iterations")]
     #[schema(default = 500, minimum = 0, maximum = 10000)]
     pub max_iterations: usize,
     /// Relative cost change below which the solve has converged. Default 1e-9.
@@ -201,7 +201,7 @@ pub struct SolverSpec {
     /// what keep the returned gains about the returned trajectory). At most
     /// the service's maximum (60000 unless configured). Unset: the service's
     /// default (10000 unless configured; the CLI has none).
-    #[serde(deserialize_with = "de_opt_count")]
+    #[serde(deserialize_with = "de_millis")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,
 }
@@ -517,25 +517,40 @@ impl Checker {
 /// Accept a count written as an integer or as an integral float (`100.0`):
 /// JSON Schema calls both integers, and clients that build JSON from floats
 /// should not get a type error for it. Anything else is an error that says
-/// an integer was expected (`"x"`, `-3`, `2.5`).
-fn de_count<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
-    let n = d.deserialize_any(Count)?;
-    usize::try_from(n)
-        .map_err(|_| serde::de::Error::invalid_value(serde::de::Unexpected::Unsigned(n), &Count))
+/// which integers the field takes (`"x"`, `-3`, `2.5`); the range check
+/// itself is [`ProblemSpec::validate`]'s, against the configured limits.
+fn de_horizon<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    de_count(
+        d,
+        "an integer from 1 to the maximum horizon (10000 unless configured lower)",
+    )
 }
 
-fn de_opt_count<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
-    d.deserialize_option(OptCount)
+fn de_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    de_count(d, "an integer from 0 to 10000")
 }
 
-/// A non-negative integer, written as `7` or `7.0`.
-struct Count;
+fn de_millis<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
+    d.deserialize_option(OptCount(Count("a positive integer (ms) or null")))
+}
+
+fn de_count<'de, D: Deserializer<'de>>(d: D, expected: &'static str) -> Result<usize, D::Error> {
+    let n = d.deserialize_any(Count(expected))?;
+    usize::try_from(n).map_err(|_| {
+        serde::de::Error::invalid_value(serde::de::Unexpected::Unsigned(n), &Count(expected))
+    })
+}
+
+/// A non-negative integer, written as `7` or `7.0`; the string says which
+/// integers the field takes, for the error message.
+#[derive(Clone, Copy)]
+struct Count(&'static str);
 
 impl<'de> Visitor<'de> for Count {
     type Value = u64;
 
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a non-negative integer")
+        f.write_str(self.0)
     }
 
     fn visit_u64<E: serde::de::Error>(self, v: u64) -> Result<u64, E> {
@@ -553,7 +568,8 @@ impl<'de> Visitor<'de> for Count {
             Ok(v as u64)
         } else if v > MAX_EXACT {
             Err(E::custom(format_args!(
-                "{v:e} is too large: expected a non-negative integer of at most 2^53"
+                "{v:e} is too large: expected {}",
+                self.0
             )))
         } else {
             Err(E::invalid_value(serde::de::Unexpected::Float(v), &self))
@@ -562,13 +578,13 @@ impl<'de> Visitor<'de> for Count {
 }
 
 /// [`Count`] or `null`.
-struct OptCount;
+struct OptCount(Count);
 
 impl<'de> Visitor<'de> for OptCount {
     type Value = Option<u64>;
 
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a non-negative integer or null")
+        f.write_str(self.0.0)
     }
 
     fn visit_none<E: serde::de::Error>(self) -> Result<Self::Value, E> {
@@ -580,7 +596,7 @@ impl<'de> Visitor<'de> for OptCount {
     }
 
     fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<Self::Value, D::Error> {
-        d.deserialize_any(Count).map(Some)
+        d.deserialize_any(self.0).map(Some)
     }
 }
 

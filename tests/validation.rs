@@ -166,23 +166,38 @@ fn shape_error(doc: Value) -> (String, String) {
 
 #[test]
 fn shape_errors_say_what_was_expected_at_the_field_itself() {
-    // Counts: an integer, not "a JSON number".
-    for (doc, got) in [
-        (json!({"horizon": "x"}), "string \"x\""),
-        (json!({"horizon": -3}), "integer `-3`"),
-        (json!({"horizon": 2.5}), "floating point `2.5`"),
+    // Counts: an integer, not "a JSON number", and the range the field
+    // takes, so `-3` is told the same range as `0` (by validation).
+    const HORIZON: &str =
+        "expected an integer from 1 to the maximum horizon (10000 unless configured lower)";
+    for (doc, got, expected) in [
+        (json!({"horizon": "x"}), "string \"x\"", HORIZON),
+        (json!({"horizon": -3}), "integer `-3`", HORIZON),
+        (json!({"horizon": 2.5}), "floating point `2.5`", HORIZON),
         (
             json!({"solver": {"max_iterations": true}}),
             "boolean `true`",
+            "expected an integer from 0 to 10000",
         ),
-        (json!({"solver": {"time_limit_ms": "5"}}), "string \"5\""),
+        (
+            json!({"solver": {"max_iterations": -1}}),
+            "integer `-1`",
+            "expected an integer from 0 to 10000",
+        ),
+        (
+            json!({"solver": {"time_limit_ms": "5"}}),
+            "string \"5\"",
+            "expected a positive integer (ms) or null",
+        ),
+        (
+            json!({"solver": {"time_limit_ms": -5}}),
+            "integer `-5`",
+            "expected a positive integer (ms) or null",
+        ),
     ] {
         let (_, detail) = shape_error(doc.clone());
         assert!(detail.contains(got), "{doc}: {detail}");
-        assert!(
-            detail.contains("expected a non-negative integer"),
-            "{doc}: {detail}"
-        );
+        assert!(detail.ends_with(expected), "{doc}: {detail}");
     }
     assert!(errors(&json!({"horizon": 3.0, "solver": {"time_limit_ms": null}})).is_empty());
     // Fixed-size arrays say the length they need, too long or too short
@@ -278,7 +293,7 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
     // Integral but beyond 2^53, where f64 stops holding every integer.
     assert_eq!(
         shape_error(json!({"horizon": 1e20})).1,
-        "1e20 is too large: expected a non-negative integer of at most 2^53"
+        "1e20 is too large: expected an integer from 1 to the maximum horizon (10000 unless configured lower)"
     );
     // A missing field is pointed at, not its parent object.
     assert_eq!(
