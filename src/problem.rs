@@ -192,15 +192,14 @@ pub struct SolverSpec {
     /// Wall-clock budget in ms. When it runs out the solve stops with status
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
-    /// of it; it is checked every iteration, between line-search rollouts
-    /// and between the backward passes that raise the regularisation, so
-    /// the answer can come one linearisation, backward pass and rollout
-    /// late. That grows with N × (1 + obstacles): 0.1–3.6 ms at N = 10000
-    /// with one obstacle, 2–22 ms with 100 (measured; the linearisation
-    /// evaluates every obstacle at every knot; it and the backward pass are
-    /// what keep the returned gains about the returned trajectory). At most
-    /// the service's maximum (60000 unless configured). Unset: the service's
-    /// default (10000 unless configured; the CLI has none).
+    /// of it. It is checked every iteration and every 128 knots inside the
+    /// linearisation, backward pass and rollouts: solves at N = 10000 ended
+    /// a median 0.0–0.2 ms late, with 1 or 100 obstacles (measured). The
+    /// initial rollout always completes, since without it there is no
+    /// trajectory to return: 10 ms at N = 10000 with 100 obstacles, under
+    /// 1 ms with one (measured). At most the service's
+    /// maximum (60000 unless configured). Unset: the service's default
+    /// (10000 unless configured; the CLI has none).
     #[serde(deserialize_with = "de_millis")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,

@@ -23,8 +23,9 @@
 //! * **Non-finite rollouts are rejected** as if their cost were +∞.
 //!
 //! The driver owns termination: it checks cancellation and the time budget
-//! every iteration and records one [`TraceRow`] per iteration. How the solve
-//! ended is a [`Status`]; only malformed input is a [`SolveError`].
+//! every iteration and every 128 knots inside the linearisation, backward
+//! pass and rollouts, and records one [`TraceRow`] per iteration. How the
+//! solve ended is a [`Status`]; only malformed input is a [`SolveError`].
 //!
 //! Every buffer lives in [`Solver`] and is sized before the loop starts, so
 //! the loop itself does not allocate (checked by `tests/allocation.rs`);
@@ -41,6 +42,15 @@ use crate::kernels::{
     add_mul, add_mul_lower, axpy, dot, ldlt, ldlt_solve_right, ldlt_solve_vec, mirror_lower,
     mul_square_sparse, transpose,
 };
+
+/// Knots between two polls of the cancellation flag and the time budget
+/// inside a linearisation, backward pass or rollout. Each of those passes
+/// costs N × (1 + obstacles) work, 20 ms at N = 10000 with 100 obstacles,
+/// so polling only between them let a solve answer that late. 128 knots
+/// are at most about 0.3 ms of work (2 µs a knot with 100 obstacles) and
+/// one poll (~25 ns) per 128 knots is lost in the noise; the seed's
+/// N = 100 passes are not polled inside at all.
+const POLL_EVERY: usize = 128;
 
 /// Trace rows reserved before the loop: 10000 rows, 720 KB. The loop
 /// allocates only if a solve runs more iterations than that.
@@ -74,10 +84,10 @@ pub struct Options {
     /// `Q_uu` is positive definite without regularisation (μ ≤ `mu_min`, or
     /// a pass at μ = 0 succeeds).
     pub tolerance: f64,
-    /// Wall-clock budget; `None` for no limit. Checked once per iteration,
-    /// between the rollouts of a line search and between the backward
-    /// passes that raise μ, so a solve can overrun it by one linearisation,
-    /// backward pass and rollout.
+    /// Wall-clock budget; `None` for no limit. Checked every iteration and
+    /// every 128 knots inside each pass, so a solve overruns it by at most
+    /// 128 knots of work, except that the initial rollout always completes
+    /// (without it there is no trajectory to return).
     pub time_limit: Option<Duration>,
     /// Initial regularisation μ (iLQG.m starts at 1: the first steps from a
     /// poor initial guess are damped, which here saves iterations).
@@ -201,18 +211,20 @@ pub struct Summary {
     pub solve_time: Duration,
     /// Whether a backward pass completed, so that [`Solver::feedback`] and
     /// [`Solver::feedforward`] hold a policy. False only when the solve
-    /// ended while the first pass was still raising μ (a time limit,
-    /// cancellation or [`Status::NoProgress`] at iteration 0); the gains are
-    /// then zero, which is no policy at all.
+    /// ended before its first backward pass completed (a time limit or
+    /// cancellation during the first linearisation or pass, or
+    /// [`Status::NoProgress`] while raising μ for it, all at iteration 0);
+    /// the gains are then zero, which is no policy at all.
     pub has_gains: bool,
     /// Whether the gains are about the iterate before the returned one: the
     /// solve stopped (a time limit, cancellation or [`Status::NoProgress`])
-    /// while the backward pass about its latest iterate was still raising
-    /// μ. `K` is then the policy of a trajectory one step away (0–12% off at
-    /// the last knot in the cases measured) and `d` can be far from the
-    /// next step (under 1% to over 1000% off). False whenever the gains
-    /// were computed about the returned trajectory, which every other exit
-    /// guarantees.
+    /// after an accepted step, before the backward pass about the new
+    /// iterate completed (during its linearisation, the pass itself, or
+    /// while raising μ). `K` is then the policy of a trajectory one step
+    /// away (0–12% off at the last knot in the cases measured) and `d` can
+    /// be far from the next step (under 1% to over 1000% off). False
+    /// whenever the gains were computed about the returned trajectory,
+    /// which every other exit guarantees.
     pub gains_about_previous_iterate: bool,
     /// The regularisation μ of the backward pass that produced the gains
     /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains
@@ -292,6 +304,14 @@ struct Backward {
     dv2: f64,
 }
 
+/// Why a backward pass did not complete.
+enum Unfinished {
+    /// `Q_uu + μI` is not positive definite at some knot: raise μ.
+    NotPositiveDefinite,
+    /// The solve was cancelled or ran out of time during the pass.
+    Interrupted(Status),
+}
+
 impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// A solver with buffers for `horizon` steps. Solving a longer horizon
     /// later grows them (once, before the loop).
@@ -349,9 +369,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// Feedback gains `K_k` of the last solve: the closed-loop policy is
     /// `u_k = ū_k + K_k (x_k − x̄_k)`. They come from the last complete
     /// backward pass, which was about the returned trajectory itself unless
-    /// the solve stopped while raising μ for a new iterate ([`Status::NoProgress`],
-    /// or a time limit or cancellation at that point): then they are about
-    /// the iterate before the last accepted step, one step away, or zero if
+    /// the solve stopped between an accepted step and the completion of the
+    /// backward pass about it ([`Status::NoProgress`] while raising μ, or a
+    /// time limit or cancellation there or during the linearisation): then
+    /// they are about the iterate before the last accepted step, or zero if
     /// no backward pass had completed yet ([`Summary::has_gains`] false;
     /// [`Summary::gains_about_previous_iterate`] tells the two apart).
     pub fn feedback(&self) -> &[SMatrix<f64, NU, NX>] {
@@ -370,8 +391,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     }
 
     /// Solve `problem` from the initial control sequence `u_init`
-    /// (`problem.horizon` entries). `cancel` is polled once per iteration;
-    /// setting it ends the solve with [`Status::Cancelled`].
+    /// (`problem.horizon` entries). `cancel` is polled with the time budget
+    /// (every iteration and every 128 knots of a pass); setting it ends the
+    /// solve with [`Status::Cancelled`].
     pub fn solve<D, C>(
         &mut self,
         problem: &Problem<D, C, NX>,
@@ -420,8 +442,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         }
         let initial_cost = cost;
 
-        // Cancellation and the time budget, polled once per iteration and
-        // between the rollouts of a line search.
+        // Cancellation and the time budget, polled once per iteration,
+        // between the rollouts of a line search and inside every pass.
         let interrupted = || {
             if cancel.load(Ordering::Relaxed) {
                 Some(Status::Cancelled)
@@ -445,20 +467,28 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             //    when a step was accepted; after a rejected step the same
             //    ones are reused with a larger μ.
             if stale {
-                self.linearize(problem);
+                // An interrupted linearisation leaves the derivatives half
+                // updated; the solve ends here, and the gains, from the
+                // pass before the accepted step, are flagged as such.
+                if let Some(status) = self.linearize(problem, &interrupted) {
+                    break 'outer status;
+                }
                 stale = false;
             }
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
             let mut bw = loop {
-                match self.backward(mu) {
-                    Some(bw) => {
+                match self.backward(mu, &interrupted) {
+                    Ok(bw) => {
                         has_gains = true;
                         gains_current = true;
                         gains_mu = mu;
                         break bw;
                     }
-                    None => {
+                    // The pass writes into spare buffers, so an interrupted
+                    // one leaves the previous gains as they were.
+                    Err(Unfinished::Interrupted(status)) => break 'outer status,
+                    Err(Unfinished::NotPositiveDefinite) => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
                             break 'outer Status::NoProgress;
@@ -505,15 +535,19 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // above μ_min, its line searches then failed on round-off, and
             // it ended `NoProgress` at a solution converged to 1e-16
             // (`dt = 10`, no obstacles).
-            if negligible(&bw)
-                && mu > options.mu_min
-                && let Some(unregularised) = self.backward(0.0)
-            {
-                bw = unregularised;
-                mu = 0.0;
-                gains_mu = 0.0;
-                if negligible(&bw) {
-                    break Status::Converged;
+            if negligible(&bw) && mu > options.mu_min {
+                match self.backward(0.0, &interrupted) {
+                    Ok(unregularised) => {
+                        bw = unregularised;
+                        mu = 0.0;
+                        gains_mu = 0.0;
+                        if negligible(&bw) {
+                            break Status::Converged;
+                        }
+                    }
+                    // The gains of the pass at μ stay, about this iterate.
+                    Err(Unfinished::Interrupted(status)) => break status,
+                    Err(Unfinished::NotPositiveDefinite) => {}
                 }
             }
             if iterations >= options.max_iterations {
@@ -545,7 +579,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     }
                 }
                 let expected = -(alpha * bw.dv1 + alpha * alpha * bw.dv2);
-                let new_cost = self.forward(problem, alpha);
+                let new_cost = match self.forward(problem, alpha, &interrupted) {
+                    Ok(new_cost) => new_cost,
+                    // A trial cut short is discarded like a failed one.
+                    Err(status) => {
+                        stop = Some(status);
+                        break;
+                    }
+                };
                 row.expected_reduction = expected;
                 if !new_cost.is_finite() {
                     continue;
@@ -608,14 +649,24 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         })
     }
 
-    /// Fill `A`, `B` and the cost expansions along `(xs, us)`.
-    fn linearize<D, C>(&mut self, problem: &Problem<D, C, NX>)
+    /// Fill `A`, `B` and the cost expansions along `(xs, us)`. Returns how
+    /// the solve must end if `interrupted` says so on one of its polls.
+    fn linearize<D, C>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        interrupted: &impl Fn() -> Option<Status>,
+    ) -> Option<Status>
     where
         D: DiscreteDynamics<NX, NU>,
         C: Cost<NX, NU>,
     {
         let n = problem.horizon;
         for k in 0..n {
+            if k % POLL_EVERY == POLL_EVERY - 1
+                && let Some(status) = interrupted()
+            {
+                return Some(status);
+            }
             let (x, u) = (&self.xs[k], &self.us[k]);
             (self.A[k], self.B[k]) = problem.dynamics.linearize(x, u);
             let e = &mut self.stage[k];
@@ -626,12 +677,20 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         problem
             .cost
             .terminal_expand(&self.xs[n], &mut self.terminal);
+        None
     }
 
     /// Eqs. 31–48 with `Q_uu + μI`, knot by knot from `N − 1` down to 0.
-    /// Returns `None` when `Q_uu + μI` is not positive definite at some knot.
+    /// Fails when `Q_uu + μI` is not positive definite at some knot, or when
+    /// `interrupted` says so on one of its polls. Either way `K` and `d` keep
+    /// the gains of the last completed pass: this one writes `K_next` and
+    /// `d_next` and swaps them in only at the end.
     #[allow(non_snake_case)]
-    fn backward(&mut self, mu: f64) -> Option<Backward> {
+    fn backward(
+        &mut self,
+        mu: f64,
+        interrupted: &impl Fn() -> Option<Status>,
+    ) -> Result<Backward, Unfinished> {
         let n = self.us.len();
         // Ping-pong between two value functions: knot k reads one and
         // writes the other.
@@ -642,6 +701,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut here = next;
         let (mut dv1, mut dv2) = (0.0, 0.0);
         for k in (0..n).rev() {
+            if (n - k).is_multiple_of(POLL_EVERY)
+                && let Some(status) = interrupted()
+            {
+                return Err(Unfinished::Interrupted(status));
+            }
             let (a, b) = riccati_step_into(
                 &self.A[k],
                 &self.B[k],
@@ -651,19 +715,26 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 &mut self.K_next[k],
                 &mut self.d_next[k],
                 &mut here,
-            )?;
+            )
+            .ok_or(Unfinished::NotPositiveDefinite)?;
             dv1 += a;
             dv2 += b;
             std::mem::swap(&mut next, &mut here);
         }
         std::mem::swap(&mut self.K, &mut self.K_next);
         std::mem::swap(&mut self.d, &mut self.d_next);
-        Some(Backward { dv1, dv2 })
+        Ok(Backward { dv1, dv2 })
     }
 
     /// Roll out `u = ū + α d + K (x − x̄)` into `xs_new`/`us_new`; returns the
-    /// cost, or +∞ as soon as a state or the cost stops being finite.
-    fn forward<D, C>(&mut self, problem: &Problem<D, C, NX>, alpha: f64) -> f64
+    /// cost, or +∞ as soon as a state or the cost stops being finite, or how
+    /// the solve must end if `interrupted` says so on one of its polls.
+    fn forward<D, C>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        alpha: f64,
+        interrupted: &impl Fn() -> Option<Status>,
+    ) -> Result<f64, Status>
     where
         D: DiscreteDynamics<NX, NU>,
         C: Cost<NX, NU>,
@@ -672,17 +743,22 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         self.xs_new[0] = problem.x0;
         let mut cost = 0.0;
         for k in 0..n {
+            if k % POLL_EVERY == POLL_EVERY - 1
+                && let Some(status) = interrupted()
+            {
+                return Err(status);
+            }
             let x = self.xs_new[k];
             let u = self.us[k] + self.d[k] * alpha + self.K[k] * (x - self.xs[k]);
             self.us_new[k] = u;
             cost += problem.cost.stage(k, &x, &u);
             let next = problem.dynamics.step(&x, &u);
             if !all_finite(&next) || !cost.is_finite() {
-                return f64::INFINITY;
+                return Ok(f64::INFINITY);
             }
             self.xs_new[k + 1] = next;
         }
-        cost + problem.cost.terminal(&self.xs_new[n])
+        Ok(cost + problem.cost.terminal(&self.xs_new[n]))
     }
 
     fn feedforward_norm(&self, n: usize) -> f64 {

@@ -434,9 +434,10 @@ class Gains:
             damped, more cautious ones. ``None`` from a service too old to
             report it.
         about_previous_iterate: ``False`` when the gains are about the
-            returned trajectory (almost always). ``True`` when the solve
-            stopped (``time_limit``, ``cancelled``, ``no_progress``) while
-            the backward pass about its latest iterate was still running:
+            returned trajectory. ``True`` when the solve stopped
+            (``time_limit``, ``cancelled``, ``no_progress``) after an
+            accepted step, before the backward pass about the new iterate
+            completed (often, when a tight budget stops a long horizon):
             the gains are then the previous iterate's, one step away (``K``
             close, ``feedforward`` not the next step). ``None`` from a
             service too old to report it.
