@@ -710,11 +710,16 @@ pub enum ParseError {
 /// Parse a problem document, locating shape errors with a JSON pointer.
 ///
 /// Two stages, so the two kinds of failure stay apart: the bytes must be one
-/// JSON value (else [`ParseError::Syntax`]; this includes numbers beyond the
-/// range of f64 such as `1e999`), and that value must be an object of the
-/// right shape (else [`ParseError::Shape`]). A key given twice in one object
-/// is a shape error at its pointer: JSON leaves its meaning open, and a
-/// `serde_json::Value` would silently keep the last.
+/// JSON value (else [`ParseError::Syntax`]), and that value must be an object
+/// of the right shape (else [`ParseError::Shape`]). A key given twice in one
+/// object is a shape error at its pointer: JSON leaves its meaning open, and
+/// a `serde_json::Value` would silently keep the last.
+///
+/// Valid JSON that cannot be read into a value is a shape error at the
+/// pointer where reading stopped, as the issue asks for NaN: a number beyond
+/// the range of f64 (`1e999`, JSON's nearest to Infinity), and nesting
+/// deeper than serde_json's limit of 128. The document is then scanned again
+/// without building values, so that a syntax error anywhere still wins.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     let mut first_repeat = None;
     let mut path = String::new();
@@ -727,7 +732,7 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         &mut json,
     )
     .and_then(|value| json.end().map(|()| value))
-    .map_err(|e| ParseError::Syntax(e.to_string()))?;
+    .map_err(|e| unreadable(bytes, &path, e))?;
     if let Some(pointer) = first_repeat {
         return Err(ParseError::Shape(FieldError {
             pointer,
@@ -761,6 +766,38 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         }
         ParseError::Shape(FieldError { pointer, detail })
     })
+}
+
+/// Why the first stage of [`parse`] failed with `e`, `path` being the
+/// pointer it had reached. Only a document that is valid JSON (checked by
+/// skipping over it, which neither converts numbers nor limits nesting) is
+/// told apart from a syntax error.
+fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
+    if let Err(syntax) = serde_json::from_slice::<serde::de::IgnoredAny>(bytes) {
+        return ParseError::Syntax(syntax.to_string());
+    }
+    let message = e.to_string();
+    let (pointer, detail) = if message.starts_with("number out of range") {
+        (
+            path.to_owned(),
+            "number out of range: expected a finite number (a 64-bit float, magnitude below 1.8e308)"
+                .to_owned(),
+        )
+    } else if message.starts_with("recursion limit exceeded") {
+        // The path is 128 levels deep by now; the member of the document
+        // it started from is the one to fix.
+        let member = path
+            .split('/')
+            .nth(1)
+            .map_or(String::new(), |m| format!("/{m}"));
+        (
+            member,
+            "nested more than 128 levels deep; no value of a problem nests more than 3".to_owned(),
+        )
+    } else {
+        return ParseError::Syntax(message);
+    };
+    ParseError::Shape(FieldError { pointer, detail })
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,

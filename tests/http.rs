@@ -348,6 +348,23 @@ async fn every_error_class_is_a_problem_document() {
     )
     .await;
     assert_eq!(p["errors"][0]["pointer"], "/dt");
+    // Valid JSON beyond f64 (JSON's nearest to Infinity) is a value at a
+    // pointer, not a syntax error; a syntax error after it still wins.
+    let p = problem_of(
+        raw("{\"model\": {\"mass\": -1e999}}", Some("application/json"))
+            .await
+            .unwrap(),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/model/mass");
+    problem_of(
+        raw("{\"dt\": 1e999,}", Some("application/json"))
+            .await
+            .unwrap(),
+        StatusCode::BAD_REQUEST,
+    )
+    .await;
     // A key given twice is ambiguous, not last-wins.
     let p = problem_of(
         raw("{\"dt\": 0.05, \"dt\": 10}", Some("application/json"))

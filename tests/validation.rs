@@ -53,12 +53,69 @@ fn non_positive_physical_parameters_are_rejected() {
 fn out_of_range_numbers_are_rejected() {
     // JSON has no NaN or Infinity; 1e999 is the nearest a client can send.
     rejects(json!({"dt": "NaN"}), "/dt");
-    // It does not fit an f64, so the document is not one we can read.
-    let overflow = br#"{"goal_state": [1e999, 0, 0, 0, 0, 0]}"#;
-    match parse(overflow) {
-        Err(ParseError::Syntax(msg)) => assert!(msg.contains("out of range"), "{msg}"),
+    // It does not fit an f64: valid JSON, but no value we can read, so it
+    // is told at its pointer like any other bad value.
+    for (doc, pointer) in [
+        (
+            &br#"{"goal_state": [1e999, 0, 0, 0, 0, 0]}"#[..],
+            "/goal_state/0",
+        ),
+        (br#"{"dt": -1e400}"#, "/dt"),
+        (
+            br#"{"obstacles": [{"center": [1, 2]}, {"center": [0, 1e999]}]}"#,
+            "/obstacles/1/center/1",
+        ),
+    ] {
+        match parse(doc) {
+            Err(ParseError::Shape(f)) => {
+                assert_eq!(f.pointer, pointer);
+                assert!(
+                    f.detail
+                        .starts_with("number out of range: expected a finite number"),
+                    "{}",
+                    f.detail
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
+    // A syntax error anywhere still makes it a syntax error, with the
+    // syntax error's own message (not the number's).
+    match parse(br#"{"dt": 1e999, "horizon": }"#) {
+        Err(ParseError::Syntax(msg)) => assert!(msg.starts_with("expected value"), "{msg}"),
         other => panic!("{other:?}"),
     }
+}
+
+#[test]
+fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
+    let deep = |open: usize, close: usize| {
+        format!(
+            "{{\"dt\": 0.05, \"model\": {}{}}}",
+            "[".repeat(open),
+            "]".repeat(close)
+        )
+    };
+    match parse(deep(200, 200).as_bytes()) {
+        Err(ParseError::Shape(f)) => {
+            assert_eq!(f.pointer, "/model");
+            assert!(
+                f.detail.starts_with("nested more than 128 levels deep"),
+                "{}",
+                f.detail
+            );
+        }
+        other => panic!("{other:?}"),
+    }
+    // Unbalanced: a syntax error, however deep.
+    assert!(matches!(
+        parse(deep(200, 199).as_bytes()),
+        Err(ParseError::Syntax(_))
+    ));
+    // 100 levels are read, and are a type error at the member.
+    assert!(
+        matches!(parse(deep(100, 100).as_bytes()), Err(ParseError::Shape(f)) if f.pointer == "/model")
+    );
 }
 
 #[test]
