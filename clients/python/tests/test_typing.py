@@ -12,7 +12,17 @@ import typing
 from typing import List
 
 import pytest
-from ilqr_client import FloatRows, Floats, Gains, Obstacle, Problem, SolveResult, Weights
+from ilqr_client import (
+    Client,
+    FloatRows,
+    Floats,
+    Gains,
+    Obstacle,
+    Problem,
+    SolveResult,
+    TraceEntry,
+    Weights,
+)
 
 pytest.importorskip("numpy")
 import numpy as np  # noqa: E402  (typed, unlike importorskip's return value)
@@ -58,6 +68,13 @@ def test_type_hints_resolve_at_run_time() -> None:
         assert hints, cls
     assert typing.get_type_hints(Problem)["initial_controls"] == typing.Optional[FloatRows]
     assert typing.get_type_hints(Obstacle)["center"] == Floats
+    # And every public method's, as_numpy's numpy return type included
+    # (it raised NameError: numpy is imported only for type checkers).
+    for owner in (Problem, Gains, SolveResult, TraceEntry, Client):
+        for name in vars(owner):
+            member = getattr(owner, name)
+            if callable(member) and not name.startswith("_"):
+                typing.get_type_hints(member)
 
 
 def test_gains_fields_are_parsed_strictly() -> None:

@@ -28,14 +28,18 @@ from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, 
 # arrays, which are not ``Sequence``s to it. At run time numpy is optional,
 # so the aliases leave it out there and ``typing.get_type_hints`` still
 # resolves every field without importing numpy.
+# ``Array`` is what ``as_numpy`` returns: ``numpy.ndarray`` to type checkers,
+# ``Any`` at run time for the same reason.
 if TYPE_CHECKING:  # pragma: no cover
     import numpy
 
     Floats = Union[Sequence[float], numpy.ndarray[Any, Any]]
     FloatRows = Union[Sequence[Floats], numpy.ndarray[Any, Any]]
+    Array = numpy.ndarray[Any, Any]
 else:
     Floats = Sequence[float]
     FloatRows = Sequence[Sequence[float]]
+    Array = Any
 
 __all__ = [
     "SOLVE_STATUSES",
@@ -495,7 +499,7 @@ class Gains:
             for u, row in zip(nominal_control, self.feedback[k])
         ]
 
-    def as_numpy(self) -> Tuple["numpy.ndarray", "numpy.ndarray"]:
+    def as_numpy(self) -> Tuple[Array, Array]:
         """``(feedback, feedforward)`` as numpy arrays of shape (N, 2, 6) and (N, 2).
 
         Raises:
@@ -603,7 +607,7 @@ class SolveResult:
             return []
         return [self.initial_cost] + [entry.cost for entry in self.trace]
 
-    def as_numpy(self) -> Dict[str, "numpy.ndarray"]:
+    def as_numpy(self) -> Dict[str, Array]:
         """The arrays of the result as numpy arrays.
 
         Returns:
