@@ -193,11 +193,12 @@ pub struct SolverSpec {
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
     /// of it. It is checked every iteration and every 128 knots inside the
-    /// linearisation, backward pass and rollouts: solves at N = 10000 ended
-    /// a median 0.0–0.2 ms late, with 1 or 100 obstacles (measured). The
+    /// linearisation, backward pass and rollouts: at N = 10000, budgets that
+    /// fell after the initial rollout were overrun by a median 0.0–0.2 ms,
+    /// with 1 or 100 obstacles (measured). The
     /// initial rollout always completes, since without it there is no
-    /// trajectory to return: 10 ms at N = 10000 with 100 obstacles, under
-    /// 1 ms with one (measured). At most the service's
+    /// trajectory to return: 5–11 ms at N = 10000 with 100 obstacles,
+    /// under 1 ms with one (measured). At most the service's
     /// maximum (60000 unless configured). Unset: the service's default
     /// (10000 unless configured; the CLI has none).
     #[serde(deserialize_with = "de_millis")]
@@ -421,9 +422,13 @@ impl ProblemSpec {
         if let Some(t) = s.time_limit_ms {
             let max = limits.max_time_limit_ms.unwrap_or(u64::MAX);
             if t == 0 || t > max {
+                let range = match limits.max_time_limit_ms {
+                    Some(max) => format!("an integer from 1 to {max}"),
+                    None => "a positive integer".to_owned(),
+                };
                 v.push(
                     "/solver/time_limit_ms",
-                    format!("must be an integer from 1 to {max} (ms), got {t}"),
+                    format!("must be {range} (ms), got {t}"),
                 );
             }
         }
@@ -530,7 +535,9 @@ fn de_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
 }
 
 fn de_millis<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
-    d.deserialize_option(OptCount(Count("a positive integer (ms) or null")))
+    d.deserialize_option(OptCount(Count(
+        "a positive integer (ms; a service takes at most 60000 unless configured), or null",
+    )))
 }
 
 fn de_count<'de, D: Deserializer<'de>>(d: D, expected: &'static str) -> Result<usize, D::Error> {

@@ -244,12 +244,12 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         (
             json!({"solver": {"time_limit_ms": "5"}}),
             "string \"5\"",
-            "expected a positive integer (ms) or null",
+            "expected a positive integer (ms; a service takes at most 60000 unless configured), or null",
         ),
         (
             json!({"solver": {"time_limit_ms": -5}}),
             "integer `-5`",
-            "expected a positive integer (ms) or null",
+            "expected a positive integer (ms; a service takes at most 60000 unless configured), or null",
         ),
     ] {
         let (_, detail) = shape_error(doc.clone());

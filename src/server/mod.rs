@@ -6,10 +6,11 @@
 //!   (cheap), then hands it to the [`pool::Pool`]. A full queue answers 503
 //!   with `Retry-After` at once; nothing waits for a slot.
 //! * **Time budget.** Every solve gets `solver.time_limit_ms` or the
-//!   configured default; the solver checks it every iteration and returns the
-//!   best trajectory so far with status `time_limit`.
+//!   configured default; the solver checks it every iteration and every 128
+//!   knots inside its passes, and returns the best trajectory so far with
+//!   status `time_limit`.
 //! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
-//!   polls every iteration. A guard owned by the request handler sets it when
+//!   polls with the budget. A guard owned by the request handler sets it when
 //!   the handler is dropped, which is what hyper does when the client
 //!   disconnects. Shutdown sets every registered flag after the grace period.
 //! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers

@@ -103,14 +103,17 @@ fn solve_tripped(trip: Trip) -> (Solver<6, 2>, ilqr::Summary, usize, usize) {
     (solver, s, stages, expands)
 }
 
+/// Where the trips fall: 200 knots into a pass, so that a poll interval of
+/// 256 or more (first poll at knot 255 or later) fails the bounds.
+const TRIP: usize = 200;
+
 #[test]
 fn a_linearisation_stops_within_one_poll_interval() {
-    // Tripped 1000 knots into the first linearisation.
-    let (solver, s, _, expands) = solve_tripped(Trip::Expand(1000));
+    let (solver, s, _, expands) = solve_tripped(Trip::Expand(TRIP));
     assert_eq!((s.status, s.iterations), (Status::Cancelled, 0), "{s:?}");
     assert!(
-        expands < 1000 + POLL_EVERY,
-        "{expands} knots linearised, the trip was at 1000"
+        expands < TRIP + POLL_EVERY,
+        "{expands} knots linearised, the trip was at {TRIP}"
     );
     // No backward pass ran, so there are no gains to return.
     assert!(!s.has_gains);
@@ -120,9 +123,9 @@ fn a_linearisation_stops_within_one_poll_interval() {
 
 #[test]
 fn a_rollout_stops_within_one_poll_interval_and_is_discarded() {
-    // The initial rollout makes N `stage` calls; trip 1000 knots into the
-    // first line-search rollout.
-    let trip = N + 1000;
+    // The initial rollout makes N `stage` calls; trip into the first
+    // line-search rollout.
+    let trip = N + TRIP;
     let (solver, s, stages, _) = solve_tripped(Trip::Stage(trip));
     assert_eq!((s.status, s.iterations), (Status::Cancelled, 1), "{s:?}");
     assert!(
@@ -136,6 +139,8 @@ fn a_rollout_stops_within_one_poll_interval_and_is_discarded() {
     assert!(s.has_gains && !s.gains_about_previous_iterate, "{s:?}");
     let row = &solver.trace()[0];
     assert_eq!((row.step_size, row.actual_reduction), (0.0, 0.0));
+    // The row still tells what the cut-short step (α = 1) was expected to gain.
+    assert!(row.expected_reduction > 0.0, "{row:?}");
     assert!(solver.controls().iter().all(|u| *u == hover(1)[0]));
 }
 
@@ -162,4 +167,22 @@ fn a_backward_pass_stops_within_one_poll_interval_and_keeps_no_half_gains() {
             .all(|d| d.iter().all(|v| *v == 0.0)),
         "the interrupted pass wrote into the returned feedforward"
     );
+}
+
+#[test]
+fn a_linearisation_after_an_accepted_step_flags_the_gains_it_returns() {
+    // Tripped in the second linearisation, about the iterate the first
+    // iteration's accepted step produced: the gains returned are the first
+    // pass's, about the initial guess, and must say so.
+    let trip = N + TRIP;
+    let (solver, s, _, expands) = solve_tripped(Trip::Expand(trip));
+    assert_eq!((s.status, s.iterations), (Status::Cancelled, 1), "{s:?}");
+    assert!(expands < trip + POLL_EVERY, "{expands}");
+    assert!(
+        s.cost < s.initial_cost,
+        "the first step was accepted: {s:?}"
+    );
+    assert!(s.has_gains && s.gains_about_previous_iterate, "{s:?}");
+    assert_eq!(solver.trace().len(), 1);
+    assert!(solver.trace()[0].step_size > 0.0);
 }
