@@ -724,9 +724,10 @@ pub enum ParseError {
 ///
 /// Valid JSON that cannot be read into a value is a shape error at the
 /// pointer where reading stopped, as the issue asks for NaN: a number beyond
-/// the range of f64 (`1e999`, JSON's nearest to Infinity), and nesting
-/// deeper than serde_json's limit of 128. The document is then scanned again
-/// without building values, so that a syntax error anywhere still wins.
+/// the range of f64 (`1e999`, JSON's nearest to Infinity), a string with an
+/// unpaired surrogate escape (`"\ud800"`), and nesting 128 levels deep or
+/// more (serde_json's limit). The document is then checked again for UTF-8
+/// and grammar, so that a syntax error anywhere still wins.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     let mut first_repeat = None;
     let mut path = String::new();
@@ -776,35 +777,66 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
 }
 
 /// Why the first stage of [`parse`] failed with `e`, `path` being the
-/// pointer it had reached. Only a document that is valid JSON (checked by
-/// skipping over it, which neither converts numbers nor limits nesting) is
-/// told apart from a syntax error.
+/// pointer it had reached. Only a document that is valid JSON is told apart
+/// from a syntax error: UTF-8 (RFC 8259 requires it; skipping does not check
+/// it) and the grammar (checked by skipping over the document, which
+/// neither converts numbers, nor decodes escapes, nor limits nesting).
 fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
+    if let Err(bad) = std::str::from_utf8(bytes) {
+        return ParseError::Syntax(format!("invalid UTF-8 at byte {}", bad.valid_up_to()));
+    }
     if let Err(syntax) = serde_json::from_slice::<serde::de::IgnoredAny>(bytes) {
         return ParseError::Syntax(syntax.to_string());
     }
     let message = e.to_string();
+    // A document that is not an object is wrong at its root, whatever is
+    // inside; say that, as the second stage would.
+    let root = bytes.iter().find(|b| !b.is_ascii_whitespace());
+    if root != Some(&b'{') {
+        let kind = match root {
+            Some(b'[') => "sequence",
+            Some(b'"') => "string",
+            _ => "number",
+        };
+        return ParseError::Shape(FieldError {
+            pointer: String::new(),
+            detail: format!("invalid type: {kind}, expected a JSON object"),
+        });
+    }
     let (pointer, detail) = if message.starts_with("number out of range") {
         (
             path.to_owned(),
-            "number out of range: expected a finite number (a 64-bit float, magnitude below 1.8e308)"
-                .to_owned(),
+            "number out of range: JSON numbers here must fit a 64-bit float (magnitude below 1.8e308)",
         )
     } else if message.starts_with("recursion limit exceeded") {
-        // The path is 128 levels deep by now; the member of the document
-        // it started from is the one to fix.
+        // The path is over a hundred levels deep by now; point at the
+        // document's member that holds the nesting, which is what to fix.
         let member = path
             .split('/')
             .nth(1)
             .map_or(String::new(), |m| format!("/{m}"));
         (
             member,
-            "nested more than 128 levels deep; no value of a problem nests more than 3".to_owned(),
+            "nested 128 levels deep or more (the document is level 1); a problem nests at most 4",
+        )
+    } else if message.starts_with("lone leading surrogate")
+        || message.starts_with("unexpected end of hex escape")
+        || message.starts_with("invalid unicode code point")
+    {
+        // The bytes are UTF-8, so this is a `\uXXXX` escape of half a
+        // UTF-16 surrogate pair: valid JSON grammar, but no Unicode text.
+        // In a key, the pointer is the key's object.
+        (
+            path.to_owned(),
+            "a string with an unpaired surrogate escape (\\ud800 to \\udfff): expected Unicode text",
         )
     } else {
         return ParseError::Syntax(message);
     };
-    ParseError::Shape(FieldError { pointer, detail })
+    ParseError::Shape(FieldError {
+        pointer,
+        detail: detail.to_owned(),
+    })
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
