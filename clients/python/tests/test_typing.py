@@ -7,6 +7,7 @@ so a signature that rejects ``numpy.ndarray`` (numpy arrays are not
 
 from __future__ import annotations
 
+import inspect
 import json
 import typing
 from typing import List
@@ -68,13 +69,32 @@ def test_type_hints_resolve_at_run_time() -> None:
         assert hints, cls
     assert typing.get_type_hints(Problem)["initial_controls"] == typing.Optional[FloatRows]
     assert typing.get_type_hints(Obstacle)["center"] == Floats
-    # And every public method's, as_numpy's numpy return type included
-    # (it raised NameError: numpy is imported only for type checkers).
-    for owner in (Problem, Gains, SolveResult, TraceEntry, Client):
-        for name in vars(owner):
-            member = getattr(owner, name)
-            if callable(member) and not name.startswith("_"):
-                typing.get_type_hints(member)
+    # And every public callable's: as_numpy's numpy return type, the plot
+    # functions' matplotlib Axes (both raised NameError: those modules are
+    # imported only for type checkers), every class's methods and
+    # properties.
+    import ilqr_client
+    import ilqr_client.plot
+
+    public = [getattr(ilqr_client, name) for name in ilqr_client.__all__]
+    public += [getattr(ilqr_client.plot, name) for name in ilqr_client.plot.__all__]
+    checked = 0
+    for obj in public:
+        if isinstance(obj, type):
+            for name, member in vars(obj).items():
+                if name.startswith("_") and name != "__init__":
+                    continue
+                if isinstance(member, property):
+                    member = member.fget
+                elif isinstance(member, (classmethod, staticmethod)):
+                    member = member.__func__
+                if inspect.isfunction(member):
+                    typing.get_type_hints(member)
+                    checked += 1
+        elif inspect.isfunction(obj):  # not the aliases, which are no functions
+            typing.get_type_hints(obj)
+            checked += 1
+    assert checked > 30, checked
 
 
 def test_gains_fields_are_parsed_strictly() -> None:

@@ -19,8 +19,13 @@ from typing import TYPE_CHECKING, Any, List, Mapping, Optional, Sequence, Tuple,
 
 from .models import Problem, SolveResult
 
+# matplotlib is optional, so its Axes type exists only for type checkers; at
+# run time the name is Any, so typing.get_type_hints resolves these
+# functions' annotations without matplotlib.
 if TYPE_CHECKING:  # pragma: no cover
     from matplotlib.axes import Axes
+else:
+    Axes = Any
 
 __all__ = ["plot_solution", "plot_cost", "save_figure"]
 
@@ -42,7 +47,7 @@ def _require_matplotlib() -> Any:
     return matplotlib
 
 
-def _new_axes() -> "Axes":
+def _new_axes() -> Axes:
     """A fresh pyplot figure's axes (only used when the caller passes none)."""
     _require_matplotlib()
     import matplotlib.pyplot as plt
@@ -80,8 +85,8 @@ def _goal_and_obstacles(
 def plot_solution(
     result: SolveResult,
     problem: Union[Problem, Mapping[str, Any], None] = None,
-    ax: Optional["Axes"] = None,
-) -> "Axes":
+    ax: Optional[Axes] = None,
+) -> Axes:
     """Draw the optimised (x, y) trajectory.
 
     Draws the path, a start marker, an end marker and, when ``problem`` is
@@ -137,7 +142,7 @@ def plot_solution(
     return ax
 
 
-def plot_cost(result: SolveResult, ax: Optional["Axes"] = None) -> "Axes":
+def plot_cost(result: SolveResult, ax: Optional[Axes] = None) -> Axes:
     """Draw the cost per iteration, on a log scale when every cost is positive.
 
     Iteration 0 is the initial guess's cost; iterations whose step was
