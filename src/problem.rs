@@ -821,11 +821,11 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
         )
     } else if message.starts_with("lone leading surrogate")
         || message.starts_with("unexpected end of hex escape")
-        || message.starts_with("invalid unicode code point")
     {
-        // The bytes are UTF-8, so this is a `\uXXXX` escape of half a
-        // UTF-16 surrogate pair: valid JSON grammar, but no Unicode text.
-        // In a key, the pointer is the key's object.
+        // The grammar held (the re-scan checks `\u` and its four hex
+        // digits), so this is an escape of half a UTF-16 surrogate pair:
+        // valid JSON, but no Unicode text. In a key, the pointer is the
+        // key's object.
         (
             path.to_owned(),
             "a string with an unpaired surrogate escape (\\ud800 to \\udfff): expected Unicode text",

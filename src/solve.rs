@@ -130,8 +130,8 @@ pub struct Gains {
     /// the pass, or while raising the regularisation): the gains are then
     /// the previous iterate's, one accepted step away: a fallback. At the
     /// last knot `K` was 0–12% off with one to six obstacles and 2–60% off
-    /// with 100 (the cases measured), and `feedforward` 8% to over 1000%
-    /// off. Common when a tight `time_limit_ms` stops a long horizon; never
+    /// with 100 (the cases measured), and `feedforward` 7.8% to over
+    /// 1000% off. Common when a tight `time_limit_ms` stops a long horizon; never
     /// at N below 128 unless the regularisation was being raised.
     pub about_previous_iterate: bool,
 }

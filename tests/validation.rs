@@ -146,11 +146,21 @@ fn unpaired_surrogate_escapes_are_told_at_their_pointer_and_bad_utf8_is_a_syntax
         (br#"{"integrator": "a\udc00"}"#, "/integrator"),
         (br#"{"x": "\ud800", "dt": 1e999}"#, "/x"),
         (br#"{"dt": 1e999, "x": "\ud800"}"#, "/dt"),
+        (br#"{"model": {"a\ud800": 1}}"#, "/model"),
+        (br#"{"x": "\ud800\\"}"#, "/x"),
     ] {
         match parse(doc) {
             Err(ParseError::Shape(f)) => assert_eq!(f.pointer, pointer),
             other => panic!("{}: {other:?}", String::from_utf8_lossy(doc)),
         }
+    }
+    // A malformed escape after a surrogate is a grammar error, not one.
+    for doc in [&br#"{"x": "\ud800\uZZZZ"}"#[..], br#"{"x": "\ud800\u12"}"#] {
+        assert!(
+            matches!(parse(doc), Err(ParseError::Syntax(_))),
+            "{}",
+            String::from_utf8_lossy(doc)
+        );
     }
     // Bytes that are not UTF-8 are not JSON at all (RFC 8259), wherever
     // they are: before or after an unreadable number.
