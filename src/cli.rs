@@ -154,7 +154,7 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         };
         let written = match target {
             None => writeln!(std::io::stdout(), "{json}"),
-            Some(target) => target.write(format!("{json}\n").as_bytes()),
+            Some(target) => target.write_line(&json),
         };
         if let Err(e) = written {
             eprintln!("error: cannot write {}: {e}", path.display());
@@ -216,15 +216,18 @@ impl OutputTarget {
         }
     }
 
-    fn write(self, bytes: &[u8]) -> std::io::Result<()> {
+    /// Write `text` and a newline (without copying `text`, which can be
+    /// megabytes).
+    fn write_line(self, text: &str) -> std::io::Result<()> {
+        fn line(mut w: impl Write, text: &str) -> std::io::Result<()> {
+            w.write_all(text.as_bytes())?;
+            w.write_all(b"\n")?;
+            w.flush()
+        }
         match self {
-            Self::File(path) => std::fs::File::create(path)?.write_all(bytes),
-            Self::Stdout => {
-                let mut out = std::io::stdout().lock();
-                out.write_all(bytes)?;
-                out.flush()
-            }
-            Self::Stream(mut file) => file.write_all(bytes),
+            Self::File(path) => line(std::io::BufWriter::new(std::fs::File::create(path)?), text),
+            Self::Stdout => line(std::io::stdout().lock(), text),
+            Self::Stream(file) => line(file, text),
         }
     }
 }

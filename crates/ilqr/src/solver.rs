@@ -52,6 +52,14 @@ use crate::kernels::{
 /// N = 100 passes are not polled inside at all.
 const POLL_EVERY: usize = 128;
 
+/// Whether a pass polls before its next knot, `done` knots into the pass
+/// (the linearisation and rollouts count from k = 0, the backward pass from
+/// k = N − 1): before every 128th knot.
+#[inline(always)]
+fn poll_due(done: usize) -> bool {
+    (done + 1).is_multiple_of(POLL_EVERY)
+}
+
 /// Trace rows reserved before the loop: 10000 rows, 720 KB. The loop
 /// allocates only if a solve runs more iterations than that.
 const TRACE_RESERVE: usize = 10_000;
@@ -226,9 +234,8 @@ pub struct Summary {
     /// while raising μ). `K` is then the policy of a trajectory one step
     /// away (at the last knot 0–12% off with one to six obstacles, 2–60%
     /// with 100, in the cases measured) and `d` can be far from the next
-    /// step (7.8% to over 1000% off). False
-    /// whenever the gains were computed about the returned trajectory,
-    /// which every other exit guarantees.
+    /// step (7.8% to over 1000% off). False whenever the gains were computed
+    /// about the returned trajectory, which every other exit guarantees.
     pub gains_about_previous_iterate: bool,
     /// The regularisation μ of the backward pass that produced the gains
     /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains
@@ -666,7 +673,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     {
         let n = problem.horizon;
         for k in 0..n {
-            if k % POLL_EVERY == POLL_EVERY - 1
+            if poll_due(k)
                 && let Some(status) = interrupted()
             {
                 return Some(status);
@@ -705,7 +712,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut here = next;
         let (mut dv1, mut dv2) = (0.0, 0.0);
         for k in (0..n).rev() {
-            if (n - k).is_multiple_of(POLL_EVERY)
+            if poll_due(n - 1 - k)
                 && let Some(status) = interrupted()
             {
                 return Err(Unfinished::Interrupted(status));
@@ -747,7 +754,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         self.xs_new[0] = problem.x0;
         let mut cost = 0.0;
         for k in 0..n {
-            if k % POLL_EVERY == POLL_EVERY - 1
+            if poll_due(k)
                 && let Some(status) = interrupted()
             {
                 return Err(status);
