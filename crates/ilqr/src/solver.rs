@@ -39,8 +39,8 @@ use nalgebra::{SMatrix, SVector};
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 use crate::dynamics::DiscreteDynamics;
 use crate::kernels::{
-    add_mul, add_mul_lower, axpy, dot, ldlt, ldlt_solve_right, ldlt_solve_vec, mirror_lower,
-    mul_square_sparse, transpose,
+    add_mul, add_mul_lower, axpy, copy_lower, dot, ldlt, ldlt_solve_right, ldlt_solve_vec,
+    mirror_lower, mul_square_sparse, transpose,
 };
 
 /// Knots between two polls of the cancellation flag and the time budget
@@ -883,7 +883,7 @@ fn riccati_step_into<const NX: usize, const NU: usize>(
     // Eq. 33: Q_xx = l_xx + Aᵀ V_xx A = l_xx + Pᵀ·A, lower triangle only,
     // built where V_xx will be (eq. 48 adds to it).
     let V_xx = &mut value.V_xx.data.0;
-    *V_xx = l.l_xx.data.0;
+    copy_lower(V_xx, &l.l_xx.data.0);
     add_mul_lower::<NX, NX, SPARSE>(V_xx, &Pt, a);
     // Eq. 35, transposed: Q_xu = l_uxᵀ + Aᵀ V_xx B = l_uxᵀ + Pᵀ·B.
     let mut Q_xu = transpose(&l.l_ux.data.0);
