@@ -522,20 +522,32 @@ impl Checker {
 /// which integers the field takes (`"x"`, `-3`, `2.5`); the range check
 /// itself is [`ProblemSpec::validate`]'s, against the configured limits.
 fn de_horizon<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
-    de_count(
-        d,
-        "an integer from 1 to the maximum horizon (10000 unless configured lower)",
-    )
+    de_count(d, HORIZON_EXPECTED)
 }
 
 fn de_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
-    de_count(d, "an integer from 0 to 10000")
+    de_count(d, ITERATIONS_EXPECTED)
 }
 
 fn de_millis<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
-    d.deserialize_option(OptCount(Count(
-        "a positive integer (ms; a service takes at most 60000 unless configured), or null",
-    )))
+    d.deserialize_option(OptCount(Count(MILLIS_EXPECTED)))
+}
+
+const HORIZON_EXPECTED: &str =
+    "an integer from 1 to the maximum horizon (10000 unless configured lower)";
+const ITERATIONS_EXPECTED: &str = "an integer from 0 to 10000";
+const MILLIS_EXPECTED: &str =
+    "a positive integer (ms; a service takes at most 60000 unless configured), or null";
+
+/// What the count field at `pointer` takes, if it is one: a number too
+/// large for f64 there gets the field's own expectation, not the float one.
+fn count_expected(pointer: &str) -> Option<&'static str> {
+    match pointer {
+        "/horizon" => Some(HORIZON_EXPECTED),
+        "/solver/max_iterations" => Some(ITERATIONS_EXPECTED),
+        "/solver/time_limit_ms" => Some(MILLIS_EXPECTED),
+        _ => None,
+    }
 }
 
 fn de_count<'de, D: Deserializer<'de>>(d: D, expected: &'static str) -> Result<usize, D::Error> {
@@ -802,10 +814,16 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
         });
     }
     let (pointer, detail) = if message.starts_with("number out of range") {
-        (
-            path.to_owned(),
-            "number out of range: JSON numbers here must fit a 64-bit float (magnitude below 1.8e308)",
-        )
+        let detail = match count_expected(path) {
+            Some(expected) => format!("number out of range: expected {expected}"),
+            None => "number out of range: JSON numbers here must fit a 64-bit float \
+                     (magnitude below 1.8e308)"
+                .to_owned(),
+        };
+        return ParseError::Shape(FieldError {
+            pointer: path.to_owned(),
+            detail,
+        });
     } else if message.starts_with("recursion limit exceeded") {
         // The path is over a hundred levels deep by now; point at the
         // document's member that holds the nesting, which is what to fix.

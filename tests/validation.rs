@@ -80,6 +80,38 @@ fn out_of_range_numbers_are_rejected() {
             other => panic!("{other:?}"),
         }
     }
+    // In a count field the message is the field's own: an integer, and
+    // which ones, not "a 64-bit float".
+    for (doc, pointer, expected) in [
+        (
+            &br#"{"horizon": 1e999}"#[..],
+            "/horizon",
+            "an integer from 1 to the maximum horizon",
+        ),
+        (
+            br#"{"solver": {"max_iterations": -1e999}}"#,
+            "/solver/max_iterations",
+            "an integer from 0 to 10000",
+        ),
+        (
+            br#"{"solver": {"time_limit_ms": 1e400}}"#,
+            "/solver/time_limit_ms",
+            "a positive integer (ms",
+        ),
+    ] {
+        match parse(doc) {
+            Err(ParseError::Shape(f)) => {
+                assert_eq!(f.pointer, pointer);
+                assert!(
+                    f.detail
+                        .starts_with(&format!("number out of range: expected {expected}")),
+                    "{}",
+                    f.detail
+                );
+            }
+            other => panic!("{other:?}"),
+        }
+    }
     // A syntax error anywhere still makes it a syntax error, with the
     // syntax error's own message (not the number's).
     match parse(br#"{"dt": 1e999, "horizon": }"#) {
