@@ -8,7 +8,7 @@ use std::sync::atomic::AtomicBool;
 
 use clap::{Parser, Subcommand};
 
-use crate::problem::{Limits, ParseError, ProblemSpec, parse};
+use crate::problem::{Invalid, Limits, ParseError, ProblemSpec, parse};
 use crate::server::{self, Config};
 use crate::solve::{SolveResult, solve};
 
@@ -253,26 +253,31 @@ fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, Vec<String>> {
             std::fs::read(p).map_err(|e| vec![format!("cannot read {}: {e}", p.display())])?
         }
     };
+    let limits = Limits::default();
     let spec = parse(&bytes).map_err(|e| match e {
         ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
-        ParseError::Shape(f) => vec![format!("{}: {}", pointer_label(&f.pointer), f.detail)],
+        ParseError::Shape(shapes) => error_lines(&shapes.with_range_errors(&limits)),
     })?;
-    spec.validate(&Limits::default()).map_err(|invalid| {
-        let mut lines: Vec<String> = invalid
-            .errors
-            .iter()
-            .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
-            .collect();
-        if invalid.unlisted > 0 {
-            lines.push(format!(
-                "{} more invalid values not listed (only the first {} are)",
-                invalid.unlisted,
-                invalid.errors.len()
-            ));
-        }
-        lines
-    })?;
+    spec.validate(&limits)
+        .map_err(|invalid| error_lines(&invalid))?;
     Ok(spec)
+}
+
+/// One line per invalid value, and one for the count of those not listed.
+fn error_lines(invalid: &Invalid) -> Vec<String> {
+    let mut lines: Vec<String> = invalid
+        .errors
+        .iter()
+        .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
+        .collect();
+    if invalid.unlisted > 0 {
+        lines.push(format!(
+            "{} more invalid values not listed (only the first {} are)",
+            invalid.unlisted,
+            invalid.errors.len()
+        ));
+    }
+    lines
 }
 
 fn pointer_label(pointer: &str) -> &str {

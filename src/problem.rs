@@ -321,6 +321,11 @@ impl ProblemSpec {
     /// [`MAX_REPORTED_ERRORS`] of them, and a count of the rest), or nothing.
     pub fn validate(&self, limits: &Limits) -> Result<(), Invalid> {
         let mut v = Checker::default();
+        self.check(limits, &mut v);
+        v.finish()
+    }
+
+    fn check(&self, limits: &Limits, v: &mut Checker) {
         let m = &self.model;
         let (lo, hi) = (MIN_PARAMETER, MAX_PARAMETER);
         v.range(&"/model/mass", m.mass, lo, hi, "kg");
@@ -383,7 +388,9 @@ impl ProblemSpec {
             );
         }
         if let Some(us) = &self.initial_controls {
-            if us.len() != self.horizon {
+            // Unless `horizon` was taken out as a wrong shape: then
+            // `self.horizon` is the default, not what was sent.
+            if us.len() != self.horizon && !v.skips("/horizon") {
                 v.push(
                     "/initial_controls",
                     format!(
@@ -430,7 +437,6 @@ impl ProblemSpec {
                 format!("must be {range} (ms), got {t}"),
             );
         }
-        v.finish()
     }
 }
 
@@ -446,7 +452,9 @@ pub const MAX_REPORTED_ERRORS: usize = 100;
 /// field a client can point at.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Invalid {
-    /// The first [`MAX_REPORTED_ERRORS`] invalid values, in document order.
+    /// The first [`MAX_REPORTED_ERRORS`] invalid values: wrong shapes
+    /// first, object keys in alphabetical order (see [`parse`]), then
+    /// out-of-range values in schema order.
     pub errors: Vec<FieldError>,
     /// How many more invalid values were found than `errors` lists.
     pub unlisted: usize,
@@ -464,10 +472,21 @@ impl From<FieldError> for Invalid {
 #[derive(Default)]
 struct Checker {
     found: Invalid,
+    /// Members taken out of the document as wrong shapes: no error is
+    /// reported at or under them (they hold defaults now).
+    skip: Vec<String>,
 }
 
 impl Checker {
+    /// Whether `pointer` is at or under a taken-out member.
+    fn skips(&self, pointer: &str) -> bool {
+        self.skip.iter().any(|r| is_at_or_under(pointer, r))
+    }
+
     fn push(&mut self, pointer: &str, detail: String) {
+        if self.skips(pointer) {
+            return;
+        }
         if self.found.errors.len() < MAX_REPORTED_ERRORS {
             self.found.errors.push(FieldError {
                 pointer: pointer.to_owned(),
@@ -720,8 +739,57 @@ pub enum ParseError {
     /// Not JSON at all (HTTP 400).
     Syntax(String),
     /// JSON of the wrong shape: a wrong type or length, an unknown field
-    /// (HTTP 422). Carries the pointer of the offending field.
-    Shape(FieldError),
+    /// (HTTP 422). Lists the offending fields by pointer; call
+    /// [`Shapes::with_range_errors`] to add the out-of-range values among
+    /// the rest.
+    Shape(Box<Shapes>),
+}
+
+/// The wrong-shaped values of a document, and what is left of it once they
+/// are taken out.
+#[derive(Debug, Clone, PartialEq)]
+pub struct Shapes {
+    /// The wrong shapes, in document order.
+    pub found: Invalid,
+    /// The document read without them (each taken-out member reads as its
+    /// default), or `None` when that was not possible: the root is not an
+    /// object, or the retry budget ran out (see [`parse`]).
+    rest: Option<ProblemSpec>,
+    /// Pointers of the members taken out.
+    removed: Vec<String>,
+}
+
+impl Shapes {
+    fn one(error: FieldError) -> Box<Self> {
+        Box::new(Self {
+            found: error.into(),
+            rest: None,
+            removed: Vec::new(),
+        })
+    }
+
+    /// The first wrong shape (there is always one).
+    pub fn first(&self) -> &FieldError {
+        &self.found.errors[0]
+    }
+
+    /// The wrong shapes, then the out-of-range values among the rest of the
+    /// document: every invalid value up to [`MAX_REPORTED_ERRORS`], so a
+    /// caller can fix them in one go. A check about a taken-out value is
+    /// skipped (it reads as its default, which says nothing about what was
+    /// sent): a bad `horizon` does not also make `initial_controls` "the
+    /// wrong number of rows for a horizon of 100".
+    pub fn with_range_errors(self, limits: &Limits) -> Invalid {
+        let Some(rest) = &self.rest else {
+            return self.found;
+        };
+        let mut v = Checker {
+            found: self.found,
+            skip: self.removed,
+        };
+        rest.check(limits, &mut v);
+        v.found
+    }
 }
 
 /// Parse a problem document, locating shape errors with a JSON pointer.
@@ -732,17 +800,26 @@ pub enum ParseError {
 /// object is a shape error at its pointer: JSON leaves its meaning open, and
 /// a `serde_json::Value` would silently keep the last.
 ///
+/// Every wrong shape is listed, not just the first: after each one the
+/// member holding it is taken out of the document (its nearest enclosing
+/// object member, so an error inside an array element takes out the whole
+/// array, and one inside an obstacle the obstacle's field) and the document
+/// is read again. Each retry reads the whole document, so their number is
+/// bounded by [`MAX_REPORTED_ERRORS`] and by the document's size (a 4 MiB
+/// body gets [`RETRY_BYTES`] / 4 MiB = 4 reads); past that the list stops.
+///
 /// Valid JSON that cannot be read into a value is a shape error at the
 /// pointer where reading stopped, as the issue asks for NaN: a number beyond
 /// the range of f64 (`1e999`, JSON's nearest to Infinity), a string with an
 /// unpaired surrogate escape (`"\ud800"`), and nesting 128 levels deep or
 /// more (serde_json's limit). The document is then checked again for UTF-8
-/// and grammar, so that a syntax error anywhere still wins.
+/// and grammar, so that a syntax error anywhere still wins. Such a document
+/// is not read further: it reports that one value.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     let mut first_repeat = None;
     let mut path = String::new();
     let mut json = serde_json::Deserializer::from_slice(bytes);
-    let value = serde::de::DeserializeSeed::deserialize(
+    let mut value = serde::de::DeserializeSeed::deserialize(
         ValueNoting {
             path: &mut path,
             first_repeat: &mut first_repeat,
@@ -751,39 +828,116 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     )
     .and_then(|value| json.end().map(|()| value))
     .map_err(|e| unreadable(bytes, &path, e))?;
+    let mut shapes = Checker::default();
     if let Some(pointer) = first_repeat {
-        return Err(ParseError::Shape(FieldError {
-            pointer,
-            detail: "this key appears more than once in its object; give it once".into(),
-        }));
+        // The value read is the last one given; it is checked like any
+        // other, but not reported twice.
+        shapes.push(
+            &pointer,
+            "this key appears more than once in its object; give it once".into(),
+        );
+        shapes.skip.push(pointer);
     }
-    // Through `ObjectOnly` like every nested struct: serde alone would take
-    // an array for the document too.
-    serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(value)).map_err(|e| {
-        let mut pointer = pointer_of(e.path());
-        let mut detail = e.into_inner().to_string();
-        // serde names the Rust type of a plain number field.
-        if let Some(head) = detail.strip_suffix("expected f64") {
-            detail = format!("{head}expected a number");
+    let reads = (RETRY_BYTES / bytes.len().max(1)).clamp(1, MAX_REPORTED_ERRORS);
+    let mut removed = Vec::new();
+    for _ in 0..reads {
+        // Through `ObjectOnly` like every nested struct: serde alone would
+        // take an array for the document too.
+        let error = match serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(&value)) {
+            Ok(spec) if shapes.found.errors.is_empty() => return Ok(spec),
+            Ok(spec) => {
+                removed.extend(shapes.skip);
+                return Err(ParseError::Shape(Box::new(Shapes {
+                    found: shapes.found,
+                    rest: Some(spec),
+                    removed,
+                })));
+            }
+            Err(e) => shape_error(e),
+        };
+        // A member taken out before and now missing: take out the member
+        // above it instead (an obstacle without its `center` cannot be
+        // read, so the obstacles go), without a second error.
+        let from = match removed.iter().find(|r| is_at_or_under(&error.pointer, r)) {
+            Some(r) => parent(r).to_owned(),
+            None => {
+                shapes.push(&error.pointer, error.detail);
+                error.pointer
+            }
+        };
+        match take_out(&mut value, &from) {
+            Some(member) => removed.push(member),
+            None => break,
         }
-        // A too-long fixed-size array: serde_json's `Value` does not say how
-        // long it should be (a too-short one does: "an array of length 6").
-        if let Some(head) = detail.strip_suffix("expected fewer elements in array")
-            && let Some(len) = fixed_length(&pointer)
+    }
+    Err(ParseError::Shape(Box::new(Shapes {
+        found: shapes.found,
+        rest: None,
+        removed,
+    })))
+}
+
+/// How many document bytes [`parse`] may read, in all, while looking for
+/// wrong shapes: every read after a wrong shape reads the whole document.
+pub const RETRY_BYTES: usize = 16 << 20;
+
+/// A serde error, as a field error with its pointer and a detail in the
+/// schema's words rather than Rust's.
+fn shape_error(e: serde_path_to_error::Error<serde_json::Error>) -> FieldError {
+    let mut pointer = pointer_of(e.path());
+    let mut detail = e.into_inner().to_string();
+    // serde names the Rust type of a plain number field.
+    if let Some(head) = detail.strip_suffix("expected f64") {
+        detail = format!("{head}expected a number");
+    }
+    // A too-long fixed-size array: serde_json's `Value` does not say how
+    // long it should be (a too-short one does: "an array of length 6").
+    if let Some(head) = detail.strip_suffix("expected fewer elements in array")
+        && let Some(len) = fixed_length(&pointer)
+    {
+        detail = format!("{head}expected an array of length {len}");
+    }
+    // serde places a missing field at its parent object; point at the
+    // field itself, which is what the caller has to add.
+    if let Some(field) = detail
+        .strip_prefix("missing field `")
+        .and_then(|rest| rest.strip_suffix('`'))
+    {
+        pointer = format!("{pointer}/{}", escape_token(field));
+        detail = "this field is required".into();
+    }
+    FieldError { pointer, detail }
+}
+
+/// Take out of `value` the nearest object member at or above `pointer`
+/// that exists, and return its pointer; `None` if there is none (the
+/// pointer is the root).
+fn take_out(value: &mut serde_json::Value, pointer: &str) -> Option<String> {
+    let mut at = pointer;
+    while !at.is_empty() {
+        let up = parent(at);
+        let key = unescape_token(&at[up.len() + 1..]);
+        if let Some(object) = value.pointer_mut(up).and_then(|v| v.as_object_mut())
+            && object.remove(&key).is_some()
         {
-            detail = format!("{head}expected an array of length {len}");
+            return Some(at.to_owned());
         }
-        // serde places a missing field at its parent object; point at the
-        // field itself, which is what the caller has to add.
-        if let Some(field) = detail
-            .strip_prefix("missing field `")
-            .and_then(|rest| rest.strip_suffix('`'))
-        {
-            pointer = format!("{pointer}/{}", escape_token(field));
-            detail = "this field is required".into();
-        }
-        ParseError::Shape(FieldError { pointer, detail })
-    })
+        at = up;
+    }
+    None
+}
+
+/// The pointer of the value that holds the one at `pointer` (`""` for a
+/// top-level member).
+fn parent(pointer: &str) -> &str {
+    pointer.rfind('/').map_or("", |i| &pointer[..i])
+}
+
+/// Whether `pointer` is `root` or lies inside it.
+fn is_at_or_under(pointer: &str, root: &str) -> bool {
+    pointer
+        .strip_prefix(root)
+        .is_some_and(|rest| rest.is_empty() || rest.starts_with('/'))
 }
 
 /// Why the first stage of [`parse`] failed with `e`, `path` being the
@@ -808,10 +962,10 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
             Some(b'"') => "string",
             _ => "number",
         };
-        return ParseError::Shape(FieldError {
+        return ParseError::Shape(Shapes::one(FieldError {
             pointer: String::new(),
             detail: format!("invalid type: {kind}, expected a JSON object"),
-        });
+        }));
     }
     let (pointer, detail) = if message.starts_with("number out of range") {
         let detail = match count_expected(path) {
@@ -820,10 +974,10 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
                      (magnitude below 1.8e308)"
                 .to_owned(),
         };
-        return ParseError::Shape(FieldError {
+        return ParseError::Shape(Shapes::one(FieldError {
             pointer: path.to_owned(),
             detail,
-        });
+        }));
     } else if message.starts_with("recursion limit exceeded") {
         // The path is over a hundred levels deep by now; point at the
         // document's member that holds the nesting, which is what to fix.
@@ -849,10 +1003,10 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
     } else {
         return ParseError::Syntax(message);
     };
-    ParseError::Shape(FieldError {
+    ParseError::Shape(Shapes::one(FieldError {
         pointer,
         detail: detail.to_owned(),
-    })
+    }))
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
@@ -956,6 +1110,11 @@ fn fixed_length(pointer: &str) -> Option<usize> {
 /// RFC 6901 escaping of one reference token.
 fn escape_token(token: &str) -> String {
     token.replace('~', "~0").replace('/', "~1")
+}
+
+/// The inverse of [`escape_token`].
+fn unescape_token(token: &str) -> String {
+    token.replace("~1", "/").replace("~0", "~")
 }
 
 /// RFC 6901 pointer of a serde path (`weights.state[2]` → `/weights/state/2`).

@@ -448,6 +448,32 @@ async fn every_error_class_is_a_problem_document() {
     }
 }
 
+/// Wrong shapes do not hide the other errors: one 422 lists them all, and
+/// the rest is checked against the server's own limits.
+#[tokio::test]
+async fn one_answer_lists_wrong_types_and_out_of_range_values() {
+    let s = Server::start(Config {
+        max_horizon: 500,
+        ..Config::default()
+    })
+    .await;
+    let body = json!({"dt": "x", "horizon": 501, "output": {"trace": "no"}});
+    let p = problem_of(s.post(&body).await, StatusCode::UNPROCESSABLE_ENTITY).await;
+    let errors = p["errors"].as_array().unwrap();
+    let pointers: Vec<&str> = errors
+        .iter()
+        .map(|e| e["pointer"].as_str().unwrap())
+        .collect();
+    assert_eq!(pointers, ["/dt", "/output/trace", "/horizon"], "{p}");
+    assert!(
+        errors[2]["detail"]
+            .as_str()
+            .unwrap()
+            .contains("from 1 to 500"),
+        "{p}"
+    );
+}
+
 /// A body declared larger than the limit is refused from its headers, before
 /// any of it is sent (and before `Expect: 100-continue` is answered).
 #[tokio::test]

@@ -205,6 +205,15 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
         "error: /dt: must be a positive number of seconds, at most 10, got 1e300\n"
     );
 
+    // A wrong type and an out-of-range value: one line each.
+    let both = run(r#"{"dt": "x", "horizon": 0}"#);
+    assert_eq!(both.status.code(), Some(2));
+    assert_eq!(
+        String::from_utf8(both.stderr).unwrap(),
+        "error: /dt: invalid type: string \"x\", expected a number\n\
+         error: /horizon: must be an integer from 1 to 10000, got 0\n"
+    );
+
     // Past the 100 listed errors, one line counts the rest.
     let rows = vec!["[1e7, 1e7]"; 5000].join(",");
     let flood = run(&format!(

@@ -9,7 +9,12 @@ use serde_json::{Value, json};
 /// Parse and validate; the pointers of every error.
 fn errors(doc: &Value) -> Vec<String> {
     match parse(doc.to_string().as_bytes()) {
-        Err(ParseError::Shape(f)) => vec![f.pointer],
+        Err(ParseError::Shape(s)) => s
+            .with_range_errors(&Limits::default())
+            .errors
+            .into_iter()
+            .map(|e| e.pointer)
+            .collect(),
         Err(ParseError::Syntax(msg)) => panic!("{doc} is JSON, got syntax error {msg}"),
         Ok(spec) => match spec.validate(&Limits::default()) {
             Ok(()) => vec![],
@@ -67,7 +72,8 @@ fn out_of_range_numbers_are_rejected() {
         ),
     ] {
         match parse(doc) {
-            Err(ParseError::Shape(f)) => {
+            Err(ParseError::Shape(s)) => {
+                let f = s.first().clone();
                 assert_eq!(f.pointer, pointer);
                 assert!(
                     f.detail.starts_with(
@@ -100,7 +106,8 @@ fn out_of_range_numbers_are_rejected() {
         ),
     ] {
         match parse(doc) {
-            Err(ParseError::Shape(f)) => {
+            Err(ParseError::Shape(s)) => {
+                let f = s.first().clone();
                 assert_eq!(f.pointer, pointer);
                 assert!(
                     f.detail
@@ -133,7 +140,8 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     // the parser refuses; 126 are read, and are a type error at the member.
     for open in [127, 200] {
         match parse(deep(open, open).as_bytes()) {
-            Err(ParseError::Shape(f)) => {
+            Err(ParseError::Shape(s)) => {
+                let f = s.first().clone();
                 assert_eq!(f.pointer, "/model");
                 assert!(
                     f.detail.starts_with("nested 128 levels deep or more"),
@@ -145,7 +153,8 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
         }
     }
     match parse(deep(126, 126).as_bytes()) {
-        Err(ParseError::Shape(f)) => {
+        Err(ParseError::Shape(s)) => {
+            let f = s.first().clone();
             assert_eq!(f.pointer, "/model");
             assert!(f.detail.contains("expected a JSON object"), "{}", f.detail);
         }
@@ -160,7 +169,8 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     let root = "[".repeat(200) + &"]".repeat(200);
     for doc in [root.as_bytes(), b"[1e999]", b"1e999", br#""\ud800""#] {
         match parse(doc) {
-            Err(ParseError::Shape(f)) => {
+            Err(ParseError::Shape(s)) => {
+                let f = s.first().clone();
                 assert_eq!(f.pointer, "");
                 assert!(f.detail.ends_with("expected a JSON object"), "{}", f.detail);
             }
@@ -182,7 +192,7 @@ fn unpaired_surrogate_escapes_are_told_at_their_pointer_and_bad_utf8_is_a_syntax
         (br#"{"x": "\ud800\\"}"#, "/x"),
     ] {
         match parse(doc) {
-            Err(ParseError::Shape(f)) => assert_eq!(f.pointer, pointer),
+            Err(ParseError::Shape(s)) => assert_eq!(s.first().pointer, pointer),
             other => panic!("{}: {other:?}", String::from_utf8_lossy(doc)),
         }
     }
@@ -302,10 +312,10 @@ fn wrong_types_and_unknown_fields_are_rejected() {
     rejects(json!([]), "");
 }
 
-/// The one shape error of `doc`, as `(pointer, detail)`.
+/// The first shape error of `doc`, as `(pointer, detail)`.
 fn shape_error(doc: Value) -> (String, String) {
     match parse(doc.to_string().as_bytes()) {
-        Err(ParseError::Shape(f)) => (f.pointer, f.detail),
+        Err(ParseError::Shape(s)) => (s.first().pointer.clone(), s.first().detail.clone()),
         other => panic!("{doc}: expected a shape error, got {other:?}"),
     }
 }
@@ -474,7 +484,8 @@ fn malformed_json_is_a_syntax_error() {
 #[test]
 fn a_key_given_twice_in_one_object_is_rejected_at_its_pointer() {
     let repeated = |body: &str| match parse(body.as_bytes()) {
-        Err(ParseError::Shape(f)) => {
+        Err(ParseError::Shape(s)) => {
+            let f = s.first().clone();
             assert!(f.detail.contains("more than once"), "{body}: {}", f.detail);
             f.pointer
         }
@@ -627,5 +638,132 @@ proptest! {
         {
             prop_assert!(r.cost.is_finite());
         }
+    }
+}
+
+#[test]
+fn every_wrong_shape_is_listed_with_the_range_errors_of_the_rest() {
+    // Two wrong types and a negative weight: all three in one answer.
+    assert_eq!(
+        errors(&json!({"dt": "x", "horizon": "y", "weights": {"state": [1, 1, -1, 1, 1, 1]}})),
+        ["/dt", "/horizon", "/weights/state/2"]
+    );
+    // Unknown fields and a wrong type inside a nested object.
+    assert_eq!(
+        errors(&json!({"a": 1, "b": 2, "model": {"mass": "x", "inertia": -1}})),
+        ["/a", "/b", "/model/mass", "/model/inertia"]
+    );
+    // A bad horizon reads as the default 100; the rows of initial_controls
+    // are not then counted against it, but their values are still checked.
+    assert_eq!(
+        errors(&json!({"horizon": "x", "initial_controls": [[1, 1], [1e9, 1]]})),
+        ["/horizon", "/initial_controls/1/0"]
+    );
+    // A key given twice is one error, whatever its last value is.
+    for body in [r#"{"dt": "x", "dt": -3}"#, r#"{"dt": 1, "dt": -3}"#] {
+        match parse(body.as_bytes()) {
+            Err(ParseError::Shape(s)) => {
+                let all = s.with_range_errors(&Limits::default()).errors;
+                assert_eq!(all.len(), 1, "{body}: {all:?}");
+                assert_eq!(all[0].pointer, "/dt");
+            }
+            other => panic!("{body}: {other:?}"),
+        }
+    }
+    // A wrong type in an obstacle's center takes out the center; the
+    // obstacle then lacks one, which is not a second error: the obstacles
+    // go, and the rest is still checked.
+    assert_eq!(
+        errors(&json!({"obstacles": [{"center": [1, "a"]}, {"weight": -1}], "dt": -1})),
+        ["/obstacles/0/center/1", "/dt"]
+    );
+}
+
+#[test]
+fn the_list_of_wrong_shapes_is_capped_and_its_rereads_bounded() {
+    use ilqr_service::problem::{MAX_REPORTED_ERRORS, RETRY_BYTES};
+    // 150 unknown fields in a small document: the first 100 are listed.
+    let mut doc = serde_json::Map::new();
+    for i in 0..150 {
+        doc.insert(format!("k{i:03}"), json!(i));
+    }
+    let pointers = errors(&Value::Object(doc));
+    assert_eq!(pointers.len(), MAX_REPORTED_ERRORS);
+    assert_eq!(pointers[0], "/k000");
+    assert_eq!(pointers[99], "/k099");
+    // In a large one, each extra read costs a read of the whole document,
+    // so they stop at RETRY_BYTES in all.
+    let rows = vec![json!([4.9, 4.9]); 200_000];
+    let mut doc = serde_json::Map::new();
+    doc.insert("initial_controls".into(), json!(rows));
+    for i in 0..30 {
+        doc.insert(format!("z{i:02}"), json!(i));
+    }
+    let body = Value::Object(doc).to_string();
+    let reads = RETRY_BYTES / body.len();
+    assert!((2..30).contains(&reads), "{} bytes", body.len());
+    match parse(body.as_bytes()) {
+        Err(ParseError::Shape(s)) => {
+            let all = s.with_range_errors(&Limits::default()).errors;
+            assert_eq!(all.len(), reads);
+            assert_eq!(all[0].pointer, "/z00");
+        }
+        other => panic!("{other:?}"),
+    }
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(200))]
+
+    /// Each field is left out, valid, of the wrong type or out of range:
+    /// the errors name exactly the bad ones, each once.
+    #[test]
+    fn the_errors_name_exactly_the_bad_fields(
+        kinds in prop::collection::vec(0u8..4, 7),
+        unknown in any::<bool>(),
+    ) {
+        // (pointer, valid, wrong type, out of range; null: no such value)
+        let fields: [(&str, Value, Value, Value); 7] = [
+            ("/dt", json!(0.1), json!("x"), json!(-1)),
+            ("/horizon", json!(20), json!([1]), json!(0)),
+            ("/model/mass", json!(2), json!(true), json!(0)),
+            ("/model/inertia", json!(2), json!({}), json!(1e9)),
+            ("/solver/tolerance", json!(1e-6), json!("1e-6"), json!(2)),
+            ("/solver/max_iterations", json!(50), json!(2.5), json!(20000)),
+            ("/output/trace", json!(false), json!("no"), Value::Null),
+        ];
+        let mut doc = json!({});
+        let mut expected = Vec::new();
+        for ((pointer, valid, wrong, out), kind) in fields.iter().zip(&kinds) {
+            let value = match kind {
+                1 => valid,
+                2 => wrong,
+                3 if !out.is_null() => out,
+                _ => continue,
+            };
+            if *kind >= 2 {
+                expected.push(pointer.to_string());
+            }
+            let mut tokens = pointer.split('/').skip(1).peekable();
+            let mut at = &mut doc;
+            while let Some(t) = tokens.next() {
+                if tokens.peek().is_none() {
+                    at[t] = value.clone();
+                } else {
+                    at = at.as_object_mut().unwrap().entry(t).or_insert(json!({}));
+                }
+            }
+        }
+        if unknown {
+            doc["model"]["colour"] = json!("red");
+            expected.push("/model/colour".into());
+        }
+        let mut got = errors(&doc);
+        let n = got.len();
+        got.sort();
+        got.dedup();
+        prop_assert_eq!(got.len(), n, "a pointer listed twice for {}", doc);
+        expected.sort();
+        prop_assert_eq!(got, expected, "{}", doc);
     }
 }

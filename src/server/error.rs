@@ -28,7 +28,9 @@ pub struct Problem {
     pub status: u16,
     /// What went wrong in this request.
     pub detail: String,
-    /// For validation errors: every offending field, up to the first 100.
+    /// For validation errors: every offending field, up to the first 100;
+    /// wrong types, lengths and unknown fields first. A wrong type inside an
+    /// array element can hide other errors in the same array.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<FieldError>,
     /// For validation errors past that cap: how many more invalid values

@@ -227,7 +227,9 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     match parse(&bytes) {
         Ok(spec) => Ok(spec),
         Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
-        Err(ParseError::Shape(f)) => Err(ApiError::Validation(f.into())),
+        Err(ParseError::Shape(shapes)) => Err(ApiError::Validation(
+            shapes.with_range_errors(&state.config.limits()),
+        )),
     }
 }
 
