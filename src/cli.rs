@@ -299,9 +299,12 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
         r.goal_distance,
     );
     for (j, (o, d)) in spec.obstacles.iter().zip(&r.closest_approach).enumerate() {
+        // Padded like the other labels, however many digits `j` has.
         s += &format!(
-            "obstacle {j}       closest approach {d:.4} m to ({}, {})\n",
-            o.center[0], o.center[1]
+            "{:<17}closest approach {d:.4} m to ({}, {})\n",
+            format!("obstacle {j}"),
+            o.center[0],
+            o.center[1]
         );
     }
     s += &format!("solve time       {:.3} ms\n", r.solve_time_ms);

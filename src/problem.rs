@@ -808,6 +808,8 @@ impl Shapes {
 /// bounded by [`MAX_REPORTED_ERRORS`] and by the document's size (a 4 MiB
 /// body gets [`RETRY_BYTES`] / 4 MiB = 4 reads); past that the list stops.
 ///
+/// A leading UTF-8 byte order mark is skipped.
+///
 /// Valid JSON that cannot be read into a value is a shape error at the
 /// pointer where reading stopped, as the issue asks for NaN: a number beyond
 /// the range of f64 (`1e999`, JSON's nearest to Infinity), a string with an
@@ -816,6 +818,9 @@ impl Shapes {
 /// and grammar, so that a syntax error anywhere still wins. Such a document
 /// is not read further: it reports that one value.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
+    // RFC 8259 §8.1 lets a parser ignore a leading byte order mark, and
+    // Windows tools often write one; anywhere else it is not JSON.
+    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
     let mut first_repeat = None;
     let mut path = String::new();
     let mut json = serde_json::Deserializer::from_slice(bytes);

@@ -469,3 +469,45 @@ fn closest_approach_measures_the_path_between_the_states() {
         coarse.closest_approach
     );
 }
+
+/// A guess held on an obstacle's tip has no descent direction: every trial's
+/// model reduction is zero, and the trace says 0, not -0.
+#[test]
+fn a_zero_model_reduction_is_written_as_zero_not_minus_zero() {
+    let cancel = AtomicBool::new(false);
+    let tip = spec(json!({
+        "initial_state": [4.5, 4.5, 0, 0, 0, 0],
+        "goal_state": [4.5, 4.5, 0, 0, 0, 0],
+        "model": {"gravity": 0},
+        "initial_controls": vec![[0, 0]; 100],
+    }));
+    let r = solve(&tip, None, &cancel).unwrap();
+    assert_eq!(r.status.as_str(), "no_progress");
+    let wire = String::from_utf8(r.to_json().unwrap()).unwrap();
+    let rows = wire.matches("\"expected_reduction\":0.0").count();
+    assert!(rows > 0, "{wire}");
+    assert!(!wire.contains("\"expected_reduction\":-0.0"), "{wire}");
+}
+
+/// The summary's values start in one column, obstacle 10 and on included.
+#[test]
+fn the_summary_keeps_its_column_past_nine_obstacles() {
+    let cancel = AtomicBool::new(false);
+    let obstacles: Vec<_> = (0..12)
+        .map(|i| json!({"center": [i, 20], "weight": 1}))
+        .collect();
+    let p = spec(json!({"obstacles": obstacles, "solver": {"max_iterations": 2}}));
+    let r = solve(&p, None, &cancel).unwrap();
+    let text = ilqr_service::cli::summary(&p, &r);
+    for line in text.lines() {
+        assert!(
+            !line[..17].ends_with(|c: char| !c.is_whitespace()),
+            "{line}"
+        );
+        assert!(!line[17..].starts_with(' '), "{line}");
+    }
+    assert!(
+        text.contains("\nobstacle 11      closest approach"),
+        "{text}"
+    );
+}

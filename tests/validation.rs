@@ -34,6 +34,17 @@ fn rejects(doc: Value, pointer: &str) {
 #[test]
 fn the_empty_document_is_the_seed_problem() {
     assert_eq!(parse(b"{}").unwrap(), ProblemSpec::default());
+    // With a byte order mark in front, as Windows tools write it; one
+    // anywhere else is not JSON.
+    assert_eq!(parse(b"\xEF\xBB\xBF{}").unwrap(), ProblemSpec::default());
+    assert!(matches!(
+        parse(b"{}\xEF\xBB\xBF"),
+        Err(ParseError::Syntax(_))
+    ));
+    assert!(matches!(
+        parse(b"\xEF\xBB\xBF\xEF\xBB\xBF{}"),
+        Err(ParseError::Syntax(_))
+    ));
     assert!(errors(&json!({})).is_empty());
     let expanded = serde_json::to_value(ProblemSpec::default()).unwrap();
     assert_eq!(

@@ -43,6 +43,11 @@ from ilqr_client.errors import error_from_response, parse_retry_after
         pytest.param(Problem(extra={"bogus": True}), ["/bogus"], id="dataclass-extra"),
         pytest.param({"obstacles": [{"center": [1, 1]}]}, ["/obstacles/0/weight"], id="missing-field"),
         pytest.param({"horizon": "x"}, ["/horizon"], id="not-an-integer"),
+        pytest.param(
+            {"dt": "x", "horizon": "y", "weights": {"state": [1, 1, -1, 1, 1, 1]}},
+            ["/dt", "/horizon", "/weights/state/2"],
+            id="wrong-types-and-a-range",
+        ),
     ],
 )
 def test_validation_errors(client: Client, problem: Any, pointers: List[str]) -> None:
@@ -136,6 +141,12 @@ def test_not_found_and_method_not_allowed(service: ServiceProcess) -> None:
     assert info.value.status == 404
     error = error_from_response(requests.get(f"{service.url}/solve", timeout=10))
     assert isinstance(error, MethodNotAllowedError) and error.status == 405
+
+
+def test_a_base_url_without_a_scheme_is_refused_at_once() -> None:
+    with pytest.raises(ValueError, match=r"e\.g\. 'http://127\.0\.0\.1:8080'"):
+        Client("127.0.0.1:8080")
+    Client("HTTPS://example.invalid").close()
 
 
 def test_nan_is_refused_before_sending(client: Client) -> None:

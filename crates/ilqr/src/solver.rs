@@ -589,7 +589,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         break;
                     }
                 }
-                let expected = -(alpha * bw.dv1 + alpha * alpha * bw.dv2);
+                // `0.0 -`, not unary minus: a zero model reduction is +0,
+                // which JSON writes as 0 rather than -0.
+                let expected = 0.0 - (alpha * bw.dv1 + alpha * alpha * bw.dv2);
                 row.expected_reduction = expected;
                 let new_cost = match self.forward(problem, alpha, &interrupted) {
                     Ok(new_cost) => new_cost,

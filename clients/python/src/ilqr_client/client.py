@@ -99,6 +99,13 @@ class Client:
             raise ValueError(f"retries must be >= 0, got {retries}")
         if backoff < 0 or max_retry_wait < 0:
             raise ValueError("backoff and max_retry_wait must be >= 0")
+        if not base_url.lower().startswith(("http://", "https://")):
+            # requests would only fail at the first call, with InvalidSchema
+            # or "No connection adapters were found".
+            raise ValueError(
+                "base_url must start with http:// or https://, "
+                f"e.g. 'http://{base_url}'; got {base_url!r}"
+            )
         self.base_url = base_url.rstrip("/")
         self.timeout = timeout
         self.retries = retries
