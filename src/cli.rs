@@ -4,7 +4,8 @@
 use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
-use std::sync::atomic::AtomicBool;
+use std::sync::Arc;
+use std::sync::atomic::{AtomicBool, Ordering};
 
 use clap::{Parser, Subcommand};
 
@@ -25,6 +26,11 @@ enum Command {
     /// Serve the HTTP API (what the binary does with no subcommand).
     Serve(Config),
     /// Solve one problem file and print a summary.
+    ///
+    /// Ctrl-C stops the solve and still writes its best trajectory (status
+    /// `cancelled`, exit code 130); a second Ctrl-C quits at once. Exit
+    /// codes: 0 solved (whatever the status), 1 a runtime failure (an
+    /// unwritable output), 2 an invalid problem, 130 interrupted.
     Solve {
         /// Problem JSON; `-` reads standard input. Omitted: the seed problem.
         problem: Option<PathBuf>,
@@ -48,7 +54,7 @@ enum Command {
 }
 
 /// Run the command line; the exit code is 0 on success, 1 on a runtime
-/// failure and 2 on invalid input.
+/// failure, 2 on invalid input and 130 for a `solve` stopped by Ctrl-C.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
@@ -128,13 +134,17 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             }
         },
     };
-    let result = match solve(&spec, spec.time_limit(None), &AtomicBool::new(false)) {
+    let cancel = Arc::new(AtomicBool::new(false));
+    cancel_on_signal(Arc::clone(&cancel));
+    let result = match solve(&spec, spec.time_limit(None), &cancel) {
         Ok(r) => r,
         Err(e) => {
             eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);
             return ExitCode::from(2);
         }
     };
+    // Only the signal sets the flag, so `cancelled` means interrupted.
+    let interrupted = result.status.as_str() == "cancelled";
     // With `-o -` the JSON owns standard output (to pipe into jq), so the
     // summary goes to standard error.
     let json_to_stdout = output.as_ref().is_some_and(|p| p.as_os_str() == "-");
@@ -161,7 +171,47 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             return ExitCode::FAILURE;
         }
     }
+    if interrupted {
+        // 128 + SIGINT, as a shell reports an interrupted command, so that
+        // a script can tell; the result was still written.
+        return ExitCode::from(130);
+    }
     ExitCode::SUCCESS
+}
+
+/// On the first SIGINT or SIGTERM, set `cancel`: the solve stops within a
+/// few milliseconds (it polls every 128 knots) with status `cancelled` and
+/// the best trajectory so far, which is then printed and written like any
+/// result. A second signal quits at once, writing nothing.
+///
+/// The handlers are installed from a thread of their own, with a
+/// single-threaded runtime for tokio's signal streams; until they are (a
+/// millisecond or so after the solve starts), a signal has its default
+/// effect.
+fn cancel_on_signal(cancel: Arc<AtomicBool>) {
+    let watch = move || {
+        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+            .enable_io()
+            .build()
+        else {
+            return; // No handler then: a signal ends the process as usual.
+        };
+        rt.block_on(async {
+            server::shutdown_signal().await;
+            cancel.store(true, Ordering::Relaxed);
+            eprintln!(
+                "interrupted: stopping the solve to write the best trajectory so far \
+                 (interrupt again to quit at once)"
+            );
+            server::shutdown_signal().await;
+            std::process::exit(130);
+        });
+    };
+    // Without the thread the solve still runs; it just cannot be stopped
+    // gently.
+    let _ = std::thread::Builder::new()
+        .name("signals".into())
+        .spawn(watch);
 }
 
 /// Where `solve -o PATH` writes the result, settled before the solve.
