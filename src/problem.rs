@@ -452,12 +452,16 @@ pub const MAX_REPORTED_ERRORS: usize = 100;
 /// field a client can point at.
 #[derive(Debug, Clone, PartialEq, Eq, Default)]
 pub struct Invalid {
-    /// The first [`MAX_REPORTED_ERRORS`] invalid values: wrong shapes
-    /// first, object keys in alphabetical order (see [`parse`]), then
-    /// out-of-range values in schema order.
+    /// The first [`MAX_REPORTED_ERRORS`] invalid values: keys given twice
+    /// first, then wrong shapes (object keys in alphabetical order, see
+    /// [`parse`]), then out-of-range values in schema order.
     pub errors: Vec<FieldError>,
     /// How many more invalid values were found than `errors` lists.
     pub unlisted: usize,
+    /// The document was not checked to its end: [`parse`]'s budget for
+    /// reading it again after wrong shapes ran out, so values it did not
+    /// reach may be invalid too, uncounted.
+    pub incomplete: bool,
 }
 
 impl From<FieldError> for Invalid {
@@ -465,6 +469,7 @@ impl From<FieldError> for Invalid {
         Self {
             errors: vec![error],
             unlisted: 0,
+            incomplete: false,
         }
     }
 }
@@ -475,6 +480,9 @@ struct Checker {
     /// Members taken out of the document as wrong shapes: no error is
     /// reported at or under them (they hold defaults now).
     skip: Vec<String>,
+    /// Keys given twice, already reported: no second error at exactly
+    /// these pointers (the values under them are checked as usual).
+    repeated: Vec<String>,
 }
 
 impl Checker {
@@ -484,7 +492,7 @@ impl Checker {
     }
 
     fn push(&mut self, pointer: &str, detail: String) {
-        if self.skips(pointer) {
+        if self.skips(pointer) || self.repeated.iter().any(|r| r == pointer) {
             return;
         }
         if self.found.errors.len() < MAX_REPORTED_ERRORS {
@@ -749,7 +757,8 @@ pub enum ParseError {
 /// are taken out.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Shapes {
-    /// The wrong shapes, in document order.
+    /// The keys given twice, then the wrong shapes (object keys in
+    /// alphabetical order).
     pub found: Invalid,
     /// The document read without them (each taken-out member reads as its
     /// default), or `None` when that was not possible: the root is not an
@@ -757,6 +766,8 @@ pub struct Shapes {
     rest: Option<ProblemSpec>,
     /// Pointers of the members taken out.
     removed: Vec<String>,
+    /// Pointers of the keys given twice (reported already).
+    repeated: Vec<String>,
 }
 
 impl Shapes {
@@ -765,6 +776,7 @@ impl Shapes {
             found: error.into(),
             rest: None,
             removed: Vec::new(),
+            repeated: Vec::new(),
         })
     }
 
@@ -786,6 +798,7 @@ impl Shapes {
         let mut v = Checker {
             found: self.found,
             skip: self.removed,
+            repeated: self.repeated,
         };
         rest.check(limits, &mut v);
         v.found
@@ -802,11 +815,14 @@ impl Shapes {
 ///
 /// Every wrong shape is listed, not just the first: after each one the
 /// member holding it is taken out of the document (its nearest enclosing
-/// object member, so an error inside an array element takes out the whole
-/// array, and one inside an obstacle the obstacle's field) and the document
-/// is read again. Each retry reads the whole document, so their number is
-/// bounded by [`MAX_REPORTED_ERRORS`] and by the document's size (a 4 MiB
-/// body gets [`RETRY_BYTES`] / 4 MiB = 4 reads); past that the list stops.
+/// object member: an error inside an array element takes out the whole
+/// array, and a bad `center` or `weight` of an obstacle, which the
+/// obstacle needs, the obstacles) and the document is read again. Each
+/// read covers the whole document, so their number is bounded by
+/// [`MAX_REPORTED_ERRORS`] and by [`RETRY_BYTES`]: a document of up to
+/// 10 KiB gets 100 reads, one of 100 KiB 10, one over 1 MiB a single
+/// read. When they run out with wrong shapes left, the list is marked
+/// [`Invalid::incomplete`].
 ///
 /// A leading UTF-8 byte order mark is skipped.
 ///
@@ -820,42 +836,48 @@ impl Shapes {
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     // RFC 8259 §8.1 lets a parser ignore a leading byte order mark, and
     // Windows tools often write one; anywhere else it is not JSON.
-    let bytes = bytes.strip_prefix(b"\xEF\xBB\xBF").unwrap_or(bytes);
-    let mut first_repeat = None;
+    const BOM: &[u8] = b"\xEF\xBB\xBF";
+    let (bytes, skipped) = match bytes.strip_prefix(BOM) {
+        Some(rest) => (rest, BOM.len()),
+        None => (bytes, 0),
+    };
+    let mut repeats = Repeats::default();
     let mut path = String::new();
     let mut json = serde_json::Deserializer::from_slice(bytes);
     let mut value = serde::de::DeserializeSeed::deserialize(
         ValueNoting {
             path: &mut path,
-            first_repeat: &mut first_repeat,
+            repeats: &mut repeats,
         },
         &mut json,
     )
     .and_then(|value| json.end().map(|()| value))
-    .map_err(|e| unreadable(bytes, &path, e))?;
+    .map_err(|e| unreadable(bytes, skipped, &path, e))?;
     let mut shapes = Checker::default();
-    if let Some(pointer) = first_repeat {
+    for pointer in repeats.pointers {
         // The value read is the last one given; it is checked like any
-        // other, but not reported twice.
+        // other, but its key is not reported twice.
         shapes.push(
             &pointer,
             "this key appears more than once in its object; give it once".into(),
         );
-        shapes.skip.push(pointer);
+        shapes.repeated.push(pointer);
     }
+    shapes.found.unlisted += repeats.more;
     let reads = (RETRY_BYTES / bytes.len().max(1)).clamp(1, MAX_REPORTED_ERRORS);
     let mut removed = Vec::new();
+    let mut incomplete = true;
     for _ in 0..reads {
         // Through `ObjectOnly` like every nested struct: serde alone would
         // take an array for the document too.
         let error = match serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(&value)) {
             Ok(spec) if shapes.found.errors.is_empty() => return Ok(spec),
             Ok(spec) => {
-                removed.extend(shapes.skip);
                 return Err(ParseError::Shape(Box::new(Shapes {
                     found: shapes.found,
                     rest: Some(spec),
                     removed,
+                    repeated: shapes.repeated,
                 })));
             }
             Err(e) => shape_error(e),
@@ -872,19 +894,28 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         };
         match take_out(&mut value, &from) {
             Some(member) => removed.push(member),
-            None => break,
+            // The root itself is wrong: there is nothing else to check.
+            None => {
+                incomplete = false;
+                break;
+            }
         }
     }
+    shapes.found.incomplete = incomplete;
     Err(ParseError::Shape(Box::new(Shapes {
         found: shapes.found,
         rest: None,
         removed,
+        repeated: shapes.repeated,
     })))
 }
 
-/// How many document bytes [`parse`] may read, in all, while looking for
-/// wrong shapes: every read after a wrong shape reads the whole document.
-pub const RETRY_BYTES: usize = 16 << 20;
+/// How many document bytes [`parse`] may read, in all, as a typed problem
+/// (each read after a wrong shape reads the whole document again). It runs
+/// on the async runtime: 1 MiB is about 5 ms there, so a hostile body
+/// costs at most that much more than the parse it needs anyway (tens of ms
+/// for a 4 MiB body).
+pub const RETRY_BYTES: usize = 1 << 20;
 
 /// A serde error, as a field error with its pointer and a detail in the
 /// schema's words rather than Rust's.
@@ -950,9 +981,13 @@ fn is_at_or_under(pointer: &str, root: &str) -> bool {
 /// from a syntax error: UTF-8 (RFC 8259 requires it; skipping does not check
 /// it) and the grammar (checked by skipping over the document, which
 /// neither converts numbers, nor decodes escapes, nor limits nesting).
-fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
+fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) -> ParseError {
     if let Err(bad) = std::str::from_utf8(bytes) {
-        return ParseError::Syntax(format!("invalid UTF-8 at byte {}", bad.valid_up_to()));
+        // Counted in the body as sent, byte order mark included.
+        return ParseError::Syntax(format!(
+            "invalid UTF-8 at byte {}",
+            bad.valid_up_to() + skipped
+        ));
     }
     if let Err(syntax) = serde_json::from_slice::<serde::de::IgnoredAny>(bytes) {
         return ParseError::Syntax(syntax.to_string());
@@ -1015,14 +1050,38 @@ fn unreadable(bytes: &[u8], path: &str, e: serde_json::Error) -> ParseError {
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
-/// and notes the pointer of the first key that repeats within its object
+/// and notes the pointers of keys that repeat within their object
 /// (`Value` alone keeps the last silently). It reads on after a repeat, so a
 /// syntax error anywhere still wins (400 over 422). Nesting is bounded by
 /// serde_json's recursion limit (128), like any parse.
 struct ValueNoting<'a> {
     /// The pointer of the value being read.
     path: &'a mut String,
-    first_repeat: &'a mut Option<String>,
+    repeats: &'a mut Repeats,
+}
+
+/// Keys given more than once in their object.
+#[derive(Default)]
+struct Repeats {
+    /// Their pointers, each once, in document order, up to
+    /// [`MAX_REPORTED_ERRORS`] (so that checking for a pointer already
+    /// noted stays cheap on a hostile document).
+    pointers: Vec<String>,
+    /// Repeats past those.
+    more: usize,
+}
+
+impl Repeats {
+    fn note(&mut self, pointer: &str) {
+        if self.pointers.iter().any(|p| p == pointer) {
+            return;
+        }
+        if self.pointers.len() < MAX_REPORTED_ERRORS {
+            self.pointers.push(pointer.to_owned());
+        } else {
+            self.more += 1;
+        }
+    }
 }
 
 impl<'de> serde::de::DeserializeSeed<'de> for ValueNoting<'_> {
@@ -1048,10 +1107,10 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             self.path.push_str(&escape_token(&key));
             let value = map.next_value_seed(ValueNoting {
                 path: self.path,
-                first_repeat: self.first_repeat,
+                repeats: self.repeats,
             })?;
-            if object.insert(key, value).is_some() && self.first_repeat.is_none() {
-                *self.first_repeat = Some(self.path.clone());
+            if object.insert(key, value).is_some() {
+                self.repeats.note(self.path);
             }
             self.path.truncate(len);
         }
@@ -1066,7 +1125,7 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             let _ = fmt::Write::write_fmt(self.path, format_args!("/{}", items.len()));
             let item = seq.next_element_seed(ValueNoting {
                 path: self.path,
-                first_repeat: self.first_repeat,
+                repeats: self.repeats,
             })?;
             self.path.truncate(len);
             match item {

@@ -472,6 +472,27 @@ async fn one_answer_lists_wrong_types_and_out_of_range_values() {
             .contains("from 1 to 500"),
         "{p}"
     );
+    assert_eq!(p["detail"], "3 invalid fields; see `errors`");
+
+    // When the parser's rereading budget runs out, the detail says the
+    // list may be incomplete.
+    let mut many = serde_json::Map::new();
+    for i in 0..150 {
+        many.insert(format!("k{i:03}"), json!(i));
+    }
+    let p = problem_of(
+        s.post(&Value::Object(many)).await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"].as_array().unwrap().len(), 100);
+    let detail = p["detail"].as_str().unwrap();
+    assert!(
+        detail.ends_with(
+            "(checking stopped here: more values may be invalid; fix these and send it again)"
+        ),
+        "{p}"
+    );
 }
 
 /// A body declared larger than the limit is refused from its headers, before

@@ -45,6 +45,11 @@ fn the_empty_document_is_the_seed_problem() {
         parse(b"\xEF\xBB\xBF\xEF\xBB\xBF{}"),
         Err(ParseError::Syntax(_))
     ));
+    // Byte offsets count it, as the body was sent.
+    assert_eq!(
+        parse(b"\xEF\xBB\xBF{\"dt\": \"\xFF\"}"),
+        Err(ParseError::Syntax("invalid UTF-8 at byte 11".into()))
+    );
     assert!(errors(&json!({})).is_empty());
     let expanded = serde_json::to_value(ProblemSpec::default()).unwrap();
     assert_eq!(
@@ -670,6 +675,33 @@ fn every_wrong_shape_is_listed_with_the_range_errors_of_the_rest() {
         errors(&json!({"horizon": "x", "initial_controls": [[1, 1], [1e9, 1]]})),
         ["/horizon", "/initial_controls/1/0"]
     );
+    // Every key given twice is listed, and the values under one are still
+    // checked (the last is the one read).
+    for (body, pointers) in [
+        (
+            r#"{"dt": 1, "dt": 2, "horizon": 1, "horizon": 2}"#,
+            &["/dt", "/horizon"][..],
+        ),
+        (
+            r#"{"weights": {}, "weights": {"state": [1, 1, -1, 1, 1, 1]}}"#,
+            &["/weights", "/weights/state/2"],
+        ),
+        // A repeated horizon is still the horizon the rows must match.
+        (
+            r#"{"horizon": 3, "horizon": 2, "initial_controls": [[1, 1]]}"#,
+            &["/horizon", "/initial_controls"],
+        ),
+    ] {
+        match parse(body.as_bytes()) {
+            Err(ParseError::Shape(s)) => {
+                let all = s.with_range_errors(&Limits::default());
+                let got: Vec<&str> = all.errors.iter().map(|e| e.pointer.as_str()).collect();
+                assert_eq!(got, pointers, "{body}");
+                assert!(!all.incomplete);
+            }
+            other => panic!("{body}: {other:?}"),
+        }
+    }
     // A key given twice is one error, whatever its last value is.
     for body in [r#"{"dt": "x", "dt": -3}"#, r#"{"dt": 1, "dt": -3}"#] {
         match parse(body.as_bytes()) {
@@ -693,18 +725,27 @@ fn every_wrong_shape_is_listed_with_the_range_errors_of_the_rest() {
 #[test]
 fn the_list_of_wrong_shapes_is_capped_and_its_rereads_bounded() {
     use ilqr_service::problem::{MAX_REPORTED_ERRORS, RETRY_BYTES};
-    // 150 unknown fields in a small document: the first 100 are listed.
+    let all = |body: &[u8]| match parse(body) {
+        Err(ParseError::Shape(s)) => s.with_range_errors(&Limits::default()),
+        other => panic!("{other:?}"),
+    };
+    // 150 unknown fields in a small document: the first 100 are listed,
+    // and the list says that checking stopped there.
     let mut doc = serde_json::Map::new();
     for i in 0..150 {
         doc.insert(format!("k{i:03}"), json!(i));
     }
-    let pointers = errors(&Value::Object(doc));
-    assert_eq!(pointers.len(), MAX_REPORTED_ERRORS);
-    assert_eq!(pointers[0], "/k000");
-    assert_eq!(pointers[99], "/k099");
+    doc.insert("dt".into(), json!(-1));
+    let invalid = all(Value::Object(doc).to_string().as_bytes());
+    assert_eq!(invalid.errors.len(), MAX_REPORTED_ERRORS);
+    assert_eq!(invalid.errors[0].pointer, "/k000");
+    assert_eq!(invalid.errors[99].pointer, "/k099");
+    assert!(invalid.incomplete);
+    // A list that is complete says so.
+    assert!(!all(br#"{"dt": "x", "horizon": 0}"#).incomplete);
     // In a large one, each extra read costs a read of the whole document,
     // so they stop at RETRY_BYTES in all.
-    let rows = vec![json!([4.9, 4.9]); 200_000];
+    let rows = vec![json!([4.9, 4.9]); 12_000];
     let mut doc = serde_json::Map::new();
     doc.insert("initial_controls".into(), json!(rows));
     for i in 0..30 {
@@ -713,14 +754,21 @@ fn the_list_of_wrong_shapes_is_capped_and_its_rereads_bounded() {
     let body = Value::Object(doc).to_string();
     let reads = RETRY_BYTES / body.len();
     assert!((2..30).contains(&reads), "{} bytes", body.len());
-    match parse(body.as_bytes()) {
-        Err(ParseError::Shape(s)) => {
-            let all = s.with_range_errors(&Limits::default()).errors;
-            assert_eq!(all.len(), reads);
-            assert_eq!(all[0].pointer, "/z00");
-        }
-        other => panic!("{other:?}"),
-    }
+    let invalid = all(body.as_bytes());
+    assert_eq!(invalid.errors.len(), reads);
+    assert_eq!(invalid.errors[0].pointer, "/z00");
+    assert!(invalid.incomplete);
+    // Over RETRY_BYTES, one read: the first wrong shape only.
+    let rows = vec![json!([4.9, 4.9]); 120_000];
+    let mut doc = serde_json::Map::new();
+    doc.insert("initial_controls".into(), json!(rows));
+    doc.insert("z".into(), json!(0));
+    doc.insert("zz".into(), json!(0));
+    let body = Value::Object(doc).to_string();
+    assert!(body.len() > RETRY_BYTES);
+    let invalid = all(body.as_bytes());
+    assert_eq!(invalid.errors.len(), 1);
+    assert!(invalid.incomplete);
 }
 
 proptest! {

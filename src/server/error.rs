@@ -29,8 +29,11 @@ pub struct Problem {
     /// What went wrong in this request.
     pub detail: String,
     /// For validation errors: every offending field, up to the first 100;
-    /// wrong types, lengths and unknown fields first. A wrong type inside an
-    /// array element can hide other errors in the same array.
+    /// keys given twice first, then wrong types, lengths and unknown
+    /// fields, then values out of range. A wrong type inside an array
+    /// element can hide other errors in the same array. When `detail` ends
+    /// with "(checking stopped here: …)", the document was not checked to
+    /// its end and more values may be invalid.
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub errors: Vec<FieldError>,
     /// For validation errors past that cap: how many more invalid values
@@ -144,6 +147,11 @@ impl ApiError {
         }
     }
 
+    /// Appended to a validation error's `detail` when the parser's budget for
+    /// re-reading the document ran out (see `problem::parse`).
+    pub const INCOMPLETE: &str = " (checking stopped here: more values may be invalid; \
+                              fix these and send it again)";
+
     /// The problem document for this error.
     pub fn problem(&self) -> Problem {
         let (status, slug, title) = self.parts();
@@ -152,7 +160,7 @@ impl ApiError {
                 (format!("the body is not valid JSON: {msg}"), vec![], None)
             }
             Self::Validation(invalid) => {
-                let detail = match (invalid.errors.as_slice(), invalid.unlisted) {
+                let mut detail = match (invalid.errors.as_slice(), invalid.unlisted) {
                     ([one], 0) => format!("{}: {}", label(&one.pointer), one.detail),
                     (many, 0) => format!("{} invalid fields; see `errors`", many.len()),
                     (listed, unlisted) => format!(
@@ -162,6 +170,9 @@ impl ApiError {
                         listed.len(),
                     ),
                 };
+                if invalid.incomplete {
+                    detail.push_str(Self::INCOMPLETE);
+                }
                 (detail, invalid.errors.clone(), None)
             }
             Self::UnsupportedMediaType => (
