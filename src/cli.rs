@@ -5,7 +5,7 @@ use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
 
 use clap::{Parser, Subcommand};
 
@@ -28,9 +28,10 @@ enum Command {
     /// Solve one problem file and print a summary.
     ///
     /// Ctrl-C stops the solve and still writes its best trajectory (status
-    /// `cancelled`, exit code 130); a second Ctrl-C quits at once. Exit
+    /// `cancelled`, exit code 130, or 143 for SIGTERM); a second Ctrl-C
+    /// before the solve has stopped quits at once, writing nothing. Exit
     /// codes: 0 solved (whatever the status), 1 a runtime failure (an
-    /// unwritable output), 2 an invalid problem, 130 interrupted.
+    /// unwritable output), 2 an invalid problem, 130 or 143 interrupted.
     Solve {
         /// Problem JSON; `-` reads standard input. Omitted: the seed problem.
         problem: Option<PathBuf>,
@@ -54,7 +55,8 @@ enum Command {
 }
 
 /// Run the command line; the exit code is 0 on success, 1 on a runtime
-/// failure, 2 on invalid input and 130 for a `solve` stopped by Ctrl-C.
+/// failure, 2 on invalid input and 130 or 143 for a `solve` stopped by
+/// SIGINT or SIGTERM.
 pub fn main() -> ExitCode {
     let cli = Cli::parse();
     match cli.command {
@@ -134,16 +136,17 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             }
         },
     };
-    let cancel = Arc::new(AtomicBool::new(false));
-    cancel_on_signal(Arc::clone(&cancel));
-    let result = match solve(&spec, spec.time_limit(None), &cancel) {
+    let signals = Signals::watch();
+    let solved = solve(&spec, spec.time_limit(None), &signals.cancel);
+    signals.finishing.store(true, Ordering::SeqCst);
+    let result = match solved {
         Ok(r) => r,
         Err(e) => {
             eprintln!("error: {}: {}", pointer_label(&e.0.pointer), e.0.detail);
             return ExitCode::from(2);
         }
     };
-    // Only the signal sets the flag, so `cancelled` means interrupted.
+    // Only a signal sets the flag, so `cancelled` means interrupted.
     let interrupted = result.status.as_str() == "cancelled";
     // With `-o -` the JSON owns standard output (to pipe into jq), so the
     // summary goes to standard error.
@@ -172,46 +175,105 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         }
     }
     if interrupted {
-        // 128 + SIGINT, as a shell reports an interrupted command, so that
-        // a script can tell; the result was still written.
-        return ExitCode::from(130);
+        // 128 + the signal's number, as a shell reports a command the
+        // signal ended, so that a script can tell; the result was still
+        // written.
+        return ExitCode::from(signals.code.load(Ordering::SeqCst));
     }
     ExitCode::SUCCESS
 }
 
-/// On the first SIGINT or SIGTERM, set `cancel`: the solve stops within a
-/// few milliseconds (it polls every 128 knots) with status `cancelled` and
-/// the best trajectory so far, which is then printed and written like any
-/// result. A second signal quits at once, writing nothing.
+/// What SIGINT and SIGTERM do to `solve`. The first one during the solve
+/// sets `cancel`: the solve stops within a few milliseconds (it polls every
+/// 128 knots) with status `cancelled` and the best trajectory so far, which
+/// is then printed and written like any result. Another one before the
+/// solve has returned quits at once, writing nothing; once it has returned
+/// (`finishing`), signals are ignored, so that the result file is written
+/// whole.
 ///
 /// The handlers are installed from a thread of their own, with a
 /// single-threaded runtime for tokio's signal streams; until they are (a
 /// millisecond or so after the solve starts), a signal has its default
 /// effect.
-fn cancel_on_signal(cancel: Arc<AtomicBool>) {
-    let watch = move || {
-        let Ok(rt) = tokio::runtime::Builder::new_current_thread()
-            .enable_io()
-            .build()
-        else {
-            return; // No handler then: a signal ends the process as usual.
+struct Signals {
+    cancel: Arc<AtomicBool>,
+    finishing: Arc<AtomicBool>,
+    /// The exit code for the signal received: 130 (SIGINT), 143 (SIGTERM).
+    code: Arc<AtomicU8>,
+}
+
+impl Signals {
+    fn watch() -> Self {
+        let signals = Self {
+            cancel: Arc::new(AtomicBool::new(false)),
+            finishing: Arc::new(AtomicBool::new(false)),
+            code: Arc::new(AtomicU8::new(130)),
         };
-        rt.block_on(async {
-            server::shutdown_signal().await;
-            cancel.store(true, Ordering::Relaxed);
-            eprintln!(
-                "interrupted: stopping the solve to write the best trajectory so far \
-                 (interrupt again to quit at once)"
-            );
-            server::shutdown_signal().await;
-            std::process::exit(130);
-        });
-    };
-    // Without the thread the solve still runs; it just cannot be stopped
-    // gently.
-    let _ = std::thread::Builder::new()
-        .name("signals".into())
-        .spawn(watch);
+        let (cancel, finishing, code) = (
+            Arc::clone(&signals.cancel),
+            Arc::clone(&signals.finishing),
+            Arc::clone(&signals.code),
+        );
+        let watch = move || {
+            let Ok(rt) = tokio::runtime::Builder::new_current_thread()
+                .enable_io()
+                .build()
+            else {
+                return; // No handler then: a signal ends the process as usual.
+            };
+            rt.block_on(async {
+                let mut first = true;
+                loop {
+                    let received = next_signal().await;
+                    if finishing.load(Ordering::SeqCst) {
+                        eprintln!("finishing: writing the result");
+                    } else if first {
+                        code.store(received, Ordering::SeqCst);
+                        cancel.store(true, Ordering::SeqCst);
+                        eprintln!(
+                            "interrupted: stopping the solve to write the best trajectory \
+                             so far (interrupt again to quit at once)"
+                        );
+                    } else {
+                        std::process::exit(i32::from(received));
+                    }
+                    first = false;
+                }
+            });
+        };
+        // Without the thread the solve still runs; it just cannot be
+        // stopped gently.
+        let _ = std::thread::Builder::new()
+            .name("signals".into())
+            .spawn(watch);
+        signals
+    }
+}
+
+/// The next SIGINT or SIGTERM, as the exit code it calls for (128 + its
+/// number).
+async fn next_signal() -> u8 {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        let term = async {
+            match signal(SignalKind::terminate()) {
+                Ok(mut s) => {
+                    s.recv().await;
+                }
+                Err(_) => std::future::pending::<()>().await,
+            }
+        };
+        tokio::select! {
+            _ = tokio::signal::ctrl_c() => 130,
+            () = term => 143,
+        }
+    }
+    #[cfg(not(unix))]
+    {
+        let _ = tokio::signal::ctrl_c().await;
+        130
+    }
 }
 
 /// Where `solve -o PATH` writes the result, settled before the solve.
@@ -326,6 +388,11 @@ fn error_lines(invalid: &Invalid) -> Vec<String> {
             invalid.unlisted,
             invalid.errors.len()
         ));
+    }
+    if invalid.incomplete {
+        lines.push(
+            "checking stopped here: more values may be invalid; fix these and run again".into(),
+        );
     }
     lines
 }

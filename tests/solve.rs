@@ -514,7 +514,8 @@ fn the_summary_keeps_its_column_past_nine_obstacles() {
 
 /// Ctrl-C during `solve` stops it like a cancelled request: the best
 /// trajectory so far is printed and written, with status `cancelled`, and
-/// the exit code is 130, as for an interrupted command.
+/// the exit code is 128 + the signal's number, as for an interrupted
+/// command (130 for SIGINT, 143 for SIGTERM).
 #[test]
 fn an_interrupted_cli_solve_writes_its_best_trajectory() {
     use std::process::{Command, Stdio};
@@ -530,49 +531,52 @@ fn an_interrupted_cli_solve_writes_its_best_trajectory() {
                      "solver": {"tolerance": 0, "max_iterations": 10000},
                      "output": {"gains": false, "trace": false}});
     std::fs::write(&problem, doc.to_string()).unwrap();
-    let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
-        .arg("solve")
-        .arg(&problem)
-        .arg("-o")
-        .arg(&out)
-        .stdout(Stdio::piped())
-        .stderr(Stdio::piped())
-        .spawn()
-        .unwrap();
-    // Parsing and the first rollout take a few ms; the handler is in place
-    // long before this.
-    std::thread::sleep(Duration::from_millis(800));
-    let sent = Instant::now();
-    let kill = Command::new("kill")
-        .args(["-INT", &child.id().to_string()])
-        .status()
-        .unwrap();
-    assert!(kill.success());
-    let status = loop {
-        if let Some(status) = child.try_wait().unwrap() {
-            break status;
-        }
-        if sent.elapsed() > Duration::from_secs(20) {
-            let _ = child.kill();
-            panic!("still running 20 s after SIGINT");
-        }
-        std::thread::sleep(Duration::from_millis(20));
-    };
-    let output = child.wait_with_output().unwrap();
-    let stderr = String::from_utf8_lossy(&output.stderr);
-    assert_eq!(status.code(), Some(130), "{stderr}");
-    assert!(
-        stderr.contains("interrupted: stopping the solve"),
-        "{stderr}"
-    );
-    let summary = String::from_utf8(output.stdout).unwrap();
-    assert!(
-        summary.starts_with("status           cancelled"),
-        "{summary}"
-    );
-    let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
-    assert_eq!(r["status"], "cancelled");
-    assert_eq!(r["states"].as_array().unwrap().len(), 10001);
-    assert!(r["cost"].as_f64().unwrap() <= r["initial_cost"].as_f64().unwrap());
+    for (signal, code) in [("-INT", 130), ("-TERM", 143)] {
+        let _ = std::fs::remove_file(&out);
+        let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .arg("solve")
+            .arg(&problem)
+            .arg("-o")
+            .arg(&out)
+            .stdout(Stdio::piped())
+            .stderr(Stdio::piped())
+            .spawn()
+            .unwrap();
+        // Parsing and the first rollout take a few ms; the handler is in
+        // place long before this.
+        std::thread::sleep(Duration::from_millis(800));
+        let sent = Instant::now();
+        let kill = Command::new("kill")
+            .args([signal, &child.id().to_string()])
+            .status()
+            .unwrap();
+        assert!(kill.success());
+        let status = loop {
+            if let Some(status) = child.try_wait().unwrap() {
+                break status;
+            }
+            if sent.elapsed() > Duration::from_secs(20) {
+                let _ = child.kill();
+                panic!("still running 20 s after {signal}");
+            }
+            std::thread::sleep(Duration::from_millis(20));
+        };
+        let output = child.wait_with_output().unwrap();
+        let stderr = String::from_utf8_lossy(&output.stderr);
+        assert_eq!(status.code(), Some(code), "{signal}: {stderr}");
+        assert!(
+            stderr.contains("interrupted: stopping the solve"),
+            "{stderr}"
+        );
+        let summary = String::from_utf8(output.stdout).unwrap();
+        assert!(
+            summary.starts_with("status           cancelled"),
+            "{summary}"
+        );
+        let r: serde_json::Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+        assert_eq!(r["status"], "cancelled");
+        assert_eq!(r["states"].as_array().unwrap().len(), 10001);
+        assert!(r["cost"].as_f64().unwrap() <= r["initial_cost"].as_f64().unwrap());
+    }
     std::fs::remove_dir_all(&dir).unwrap();
 }
