@@ -147,6 +147,11 @@ def test_a_base_url_without_a_scheme_is_refused_at_once() -> None:
     with pytest.raises(ValueError, match=r"e\.g\. 'http://127\.0\.0\.1:8080'"):
         Client("127.0.0.1:8080")
     Client("HTTPS://example.invalid").close()
+    # A session of one's own may serve other schemes through its adapters.
+    session = requests.Session()
+    session.mount("http+unix://", requests.adapters.HTTPAdapter())
+    Client("http+unix://%2Frun%2Filqr.sock", session=session).close()
+    session.close()
 
 
 def test_nan_is_refused_before_sending(client: Client) -> None:

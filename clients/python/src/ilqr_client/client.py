@@ -79,7 +79,10 @@ class Client:
             Retry-After says.
 
     Raises:
-        ValueError: for a negative ``retries``, ``backoff`` or ``max_retry_wait``.
+        ValueError: for a negative ``retries``, ``backoff`` or ``max_retry_wait``,
+            and for a ``base_url`` that does not start with ``http://`` or
+            ``https://`` unless a ``session`` is given (whose adapters may
+            serve other schemes).
 
     A :class:`requests.Session` is not guaranteed to be thread-safe: give each
     thread its own client (they are cheap) rather than sharing one.
@@ -99,9 +102,10 @@ class Client:
             raise ValueError(f"retries must be >= 0, got {retries}")
         if backoff < 0 or max_retry_wait < 0:
             raise ValueError("backoff and max_retry_wait must be >= 0")
-        if not base_url.lower().startswith(("http://", "https://")):
+        if session is None and not base_url.lower().startswith(("http://", "https://")):
             # requests would only fail at the first call, with InvalidSchema
-            # or "No connection adapters were found".
+            # or "No connection adapters were found". A session of the
+            # caller's may have an adapter for another scheme (http+unix://).
             raise ValueError(
                 "base_url must start with http:// or https://, "
                 f"e.g. 'http://{base_url}'; got {base_url!r}"
