@@ -791,7 +791,26 @@ impl Shapes {
     /// skipped (it reads as its default, which says nothing about what was
     /// sent): a bad `horizon` does not also make `initial_controls` "the
     /// wrong number of rows for a horizon of 100".
-    pub fn with_range_errors(self, limits: &Limits) -> Invalid {
+    pub fn with_range_errors(mut self, limits: &Limits) -> Invalid {
+        // A count's type error was written without the limits; say the
+        // configured ones, as the range check would.
+        for e in &mut self.found.errors {
+            let (generic, actual) = match e.pointer.as_str() {
+                "/horizon" => (
+                    HORIZON_EXPECTED,
+                    format!("an integer from 1 to {}", limits.max_horizon),
+                ),
+                "/solver/time_limit_ms" => match limits.max_time_limit_ms {
+                    Some(max) => (
+                        MILLIS_EXPECTED,
+                        format!("an integer from 1 to {max} (ms), or null"),
+                    ),
+                    None => continue,
+                },
+                _ => continue,
+            };
+            e.detail = e.detail.replace(generic, &actual);
+        }
         let Some(rest) = &self.rest else {
             return self.found;
         };

@@ -474,6 +474,18 @@ async fn one_answer_lists_wrong_types_and_out_of_range_values() {
     );
     assert_eq!(p["detail"], "3 invalid fields; see `errors`");
 
+    // A count of the wrong type is told this server's range too.
+    let body = json!({"horizon": "x", "solver": {"time_limit_ms": "y"}});
+    let p = problem_of(s.post(&body).await, StatusCode::UNPROCESSABLE_ENTITY).await;
+    assert_eq!(
+        p["errors"][0]["detail"],
+        "invalid type: string \"x\", expected an integer from 1 to 500"
+    );
+    assert_eq!(
+        p["errors"][1]["detail"],
+        "invalid type: string \"y\", expected an integer from 1 to 60000 (ms), or null"
+    );
+
     // When the parser's rereading budget runs out, the detail says the
     // list may be incomplete.
     let mut many = serde_json::Map::new();
