@@ -8,7 +8,9 @@ terminal weights over several decades; in 30% of them the start sits
 within 1 mm of the first obstacle's centre), solves each with
 `BINARY solve - -o FILE`, and prints the count of each status, plus the
 solves that ended `converged` with a last regularisation above 1: a heavily
-damped step is small, so it could look converged without being so.
+damped step is small, so it could look converged without being so; and
+those that fell back to the convex model of the cost
+(`convexified_after_iteration`, the solver's `Options::convex_fallback`).
 
 Those 11 (seed 1; 7 with mu_max = 1e10) were checked on 2026-11-23: iLQR
 restarted from its own answer, IPOPT (bench/casadi_ipopt.py's NLP, tol
@@ -90,6 +92,7 @@ def main() -> int:
     rng = random.Random(seed)
     statuses = collections.Counter()
     suspicious = []
+    convexified = []
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "result.json")
         for i in range(count):
@@ -104,8 +107,13 @@ def main() -> int:
             mus = [row["regularization"] for row in r["trace"]]
             if r["status"] == "converged" and mus and mus[-1] > 1:
                 suspicious.append((i, round(mus[-1], 3), r["iterations"]))
+            if r.get("convexified_after_iteration") is not None:
+                convexified.append((i, r["status"], r["convexified_after_iteration"], r["iterations"],
+                                    f"{r['cost'] / r['initial_cost']:.2e}"))
     print(dict(statuses))
     print("converged with a last regularisation above 1 (problem, mu, iterations):", suspicious)
+    print("fell back to the convex model (problem, status, after iteration, iterations, cost/initial):",
+          convexified)
     return 0
 
 

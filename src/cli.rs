@@ -424,6 +424,11 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
             o.center[1]
         );
     }
+    if let Some(k) = r.convexified_after_iteration {
+        s += &format!(
+            "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20)\n"
+        );
+    }
     s += &format!("solve time       {:.3} ms\n", r.solve_time_ms);
     s
 }

@@ -35,7 +35,8 @@ pub enum SolveStatus {
     TimeLimit,
     /// The solve was cancelled (client gone, or service shutting down).
     Cancelled,
-    /// Regularisation passed its maximum: no step could reduce the cost.
+    /// Regularisation passed its maximum: no step could reduce the cost,
+    /// with the exact Hessian nor with the convex model tried after it.
     NoProgress,
 }
 
@@ -101,6 +102,18 @@ pub struct SolveResult {
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
     pub trace: Option<Vec<TraceEntry>>,
+    /// Absent when the solve used the cost's exact Hessian throughout (the
+    /// seed and nearly every problem). Otherwise the number of iterations
+    /// completed when it fell back to a convex model of the cost: the
+    /// exact Hessian left `Q_uu + μI` indefinite at every μ up to 1e20
+    /// (obstacles' negative curvature piled up over a long horizon, a flight
+    /// of 200 s or more say), and the solve went on with the obstacles'
+    /// curvature across their radial direction dropped. A `converged` after
+    /// that means a stationary point of the true cost whose second-order
+    /// condition was not checked; the gains come from the convex model.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0)]
+    pub convexified_after_iteration: Option<usize>,
     /// Time spent solving, in ms.
     pub solve_time_ms: f64,
     /// Time spent waiting for a worker, in ms (0 outside the service).
@@ -294,6 +307,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         controls: solver.controls().iter().map(|u| (*u).into()).collect(),
         gains,
         trace,
+        convexified_after_iteration: summary.convexified_after,
         solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
         queue_time_ms: 0.0,
     })

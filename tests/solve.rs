@@ -107,24 +107,27 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
     assert!(again.cost <= first.cost);
 }
 
-/// A solve whose first backward pass never completes has no policy: at
-/// `dt = 10` the seed's first pass fails at every μ up to its maximum, and
-/// the answer (`no_progress`, 0 iterations, the initial guess) leaves the
-/// gains out rather than sending zeros that read as an open-loop policy.
-/// A solve with even one complete pass keeps them, `max_iterations: 0`
-/// included.
+/// A solve whose first backward pass never completes has no policy: one
+/// cancelled before it starts (the flag already set; N = 1000, so the
+/// first linearisation polls it, at knot 128) ends during its first
+/// linearisation, and the answer (`cancelled`, 0 iterations, the initial guess)
+/// leaves the gains out rather than sending zeros that read as an
+/// open-loop policy. (`dt = 10` used to be the example: its first pass
+/// failed at every μ; the convex fallback now solves it.) A solve with
+/// even one complete pass keeps them, `max_iterations: 0` included.
 #[test]
 fn gains_are_left_out_when_no_backward_pass_completed() {
-    let cancel = AtomicBool::new(false);
-    let r = solve(&spec(json!({"dt": 10})), None, &cancel).unwrap();
+    let cancelled = AtomicBool::new(true);
+    let r = solve(&spec(json!({"horizon": 1000})), None, &cancelled).unwrap();
     assert_eq!(
         (r.status.as_str(), r.iterations, r.cost),
-        ("no_progress", 0, r.initial_cost)
+        ("cancelled", 0, r.initial_cost)
     );
     assert!(r.gains.is_none());
     let wire: serde_json::Value = serde_json::from_slice(&r.to_json().unwrap()).unwrap();
     assert!(wire.get("gains").is_none(), "{wire}");
 
+    let cancel = AtomicBool::new(false);
     let r = solve(
         &spec(json!({"solver": {"max_iterations": 0}})),
         None,
@@ -579,4 +582,38 @@ fn an_interrupted_cli_solve_writes_its_best_trajectory() {
         assert!(r["cost"].as_f64().unwrap() <= r["initial_cost"].as_f64().unwrap());
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `convexified_after_iteration` is absent for the seed, and says when a
+/// solve fell back to the convex model of the cost: a 200 s flight
+/// (N = 4000, dt = 0.05) from a guess a hair above hover, which used to end
+/// `no_progress` after 2 iterations.
+#[test]
+fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
+    let cancel = AtomicBool::new(false);
+    let seed = solve(&spec(json!({})), None, &cancel).unwrap();
+    assert_eq!(seed.convexified_after_iteration, None);
+    let wire: serde_json::Value = serde_json::from_slice(&seed.to_json().unwrap()).unwrap();
+    assert!(wire.get("convexified_after_iteration").is_none(), "{wire}");
+
+    let long = spec(json!({
+        "horizon": 4000,
+        "initial_controls": vec![[4.9051, 4.9051]; 4000],
+        "output": {"trace": false},
+    }));
+    let r = solve(&long, None, &cancel).unwrap();
+    assert_eq!(r.status.as_str(), "converged", "{:?}", r.status);
+    assert_eq!(r.convexified_after_iteration, Some(2));
+    assert!(
+        r.cost < 0.05 * r.initial_cost,
+        "{} from {}",
+        r.cost,
+        r.initial_cost
+    );
+    assert!(r.goal_distance < 0.01, "{}", r.goal_distance);
+    let text = ilqr_service::cli::summary(&long, &r);
+    assert!(
+        text.contains("\nconvexified      after iteration 2 "),
+        "{text}"
+    );
 }

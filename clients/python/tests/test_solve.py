@@ -39,6 +39,18 @@ def test_seed_problem_converges(seed_result: SolveResult) -> None:
     assert result.horizon == 100
     assert result.states[0] == [5.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     assert len(result.closest_approach) == 1 and result.closest_approach[0] > 0
+    assert result.convexified_after_iteration is None
+
+
+def test_a_long_flight_reports_the_convex_fallback(client: Client) -> None:
+    # 200 s from a guess a hair above hover: the exact Hessian gets nowhere
+    # after 2 iterations, the convex model of the cost takes over.
+    result = client.solve(
+        {"horizon": 4000, "initial_controls": [[4.9051, 4.9051]] * 4000, "output": {"trace": False}}
+    )
+    assert result.status == "converged"
+    assert result.convexified_after_iteration == 2
+    assert result.cost < 0.05 * result.initial_cost
 
 
 def test_seed_problem_gains(seed_result: SolveResult) -> None:

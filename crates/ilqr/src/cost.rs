@@ -76,6 +76,21 @@ pub trait Cost<const NX: usize, const NU: usize>: Send + Sync {
         u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     );
+    /// Like [`Cost::stage_expand`], with a positive semi-definite
+    /// approximation of the Hessian in place of the exact one. The solver
+    /// falls back to it when the exact Hessian leaves `Q_uu` indefinite at
+    /// every regularisation up to `Options::mu_max` (see
+    /// `Options::convex_fallback`). The default is the exact expansion,
+    /// right for a cost that is convex already.
+    fn stage_expand_convex(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.stage_expand(k, x, u, e);
+    }
     /// `l_f(x_N)`.
     fn terminal(&self, x: &SVector<f64, NX>) -> f64;
     /// Add the derivatives of `l_f` at `x` into `e`.
@@ -94,6 +109,18 @@ pub trait StageCost<const NX: usize, const NU: usize>: Send + Sync {
         u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     );
+    /// Add the term's gradient and a positive semi-definite approximation
+    /// of its Hessian into `e` (see [`Cost::stage_expand_convex`]). The
+    /// default adds the exact Hessian: a convex term overrides nothing.
+    fn expand_convex(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.expand(k, x, u, e);
+    }
 }
 
 /// One additive term of a terminal cost.
@@ -153,6 +180,18 @@ impl<const NX: usize, const NU: usize> Cost<NX, NU> for Objective<NX, NU> {
     ) {
         for t in &self.stage {
             t.expand(k, x, u, e);
+        }
+    }
+
+    fn stage_expand_convex(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        for t in &self.stage {
+            t.expand_convex(k, x, u, e);
         }
     }
 
@@ -306,6 +345,35 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
         e: &mut StageExpansion<NX, NU>,
     ) {
         let (_, grad, hess) = self.position_model(x);
+        self.add(&grad, &hess, e);
+    }
+
+    /// The Hessian's negative curvature dropped. The exact Hessian has the
+    /// eigenvalue `q e^{−ρ}` along the direction `n` away from the centre
+    /// and `−q e^{−ρ}/ρ` across it; keeping `q e^{−ρ} n nᵀ` is its
+    /// projection onto the positive semi-definite matrices, in closed form.
+    fn expand_convex(
+        &self,
+        _k: usize,
+        x: &SVector<f64, NX>,
+        _u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        let (value, grad, _) = self.position_model(x);
+        let delta = self.offset(x);
+        let r = delta.norm().max(Self::MIN_DISTANCE);
+        let outer = delta * delta.transpose() / (r * r);
+        self.add(&grad, &(outer * value), e);
+    }
+}
+
+impl ExpObstacle {
+    fn add<const NX: usize, const NU: usize>(
+        &self,
+        grad: &Vector2<f64>,
+        hess: &Matrix2<f64>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
         let idx = [self.position.0, self.position.1];
         for a in 0..2 {
             e.l_x[idx[a]] += grad[a];

@@ -104,7 +104,9 @@ pub struct Options {
     pub mu_init: f64,
     /// Smallest non-zero μ; below it μ snaps to 0.
     pub mu_min: f64,
-    /// Largest μ; needing more ends the solve with [`Status::NoProgress`].
+    /// Largest μ; needing more switches to the cost's convex expansion
+    /// ([`Options::convex_fallback`]), or, when that is off or in use
+    /// already, ends the solve with [`Status::NoProgress`].
     ///
     /// The default, 1e20, is far above iLQG.m's 1e10 because `Q_uu` here is
     /// not normalised: the obstacle term's negative curvature (up to `q/ρ`
@@ -145,6 +147,20 @@ pub struct Options {
     /// say so (a problem whose cost is identically zero: every step gains
     /// nothing, and without the bound the solve ends `NoProgress`).
     pub cost_lower_bound: Option<f64>,
+    /// When μ passes `mu_max`, go on with the cost's convex expansion
+    /// ([`Cost::stage_expand_convex`]: the obstacle terms' negative
+    /// curvature dropped) instead of ending [`Status::NoProgress`]; μ starts
+    /// again from `mu_init`, and the solve uses the convex expansion to its
+    /// end. Only a solve that would have ended `NoProgress` changes, so the
+    /// seed problem and every problem that converged before are untouched.
+    ///
+    /// Over long horizons the exact Hessian's negative curvature
+    /// accumulates through `V_xx` until no μ up to 1e20 makes `Q_uu`
+    /// positive definite: from a near-hover guess (4.9051 N per rotor),
+    /// N·dt = 200 s and 400 s ended `NoProgress` at iteration 0–2; with the
+    /// fallback they converge or end at the iteration cap far below their
+    /// initial cost (tests in `crates/ilqr/tests/quadrotor_seed.rs`).
+    pub convex_fallback: bool,
 }
 
 impl Default for Options {
@@ -162,6 +178,7 @@ impl Default for Options {
             step_sizes: (0..11).map(|i| 10f64.powf(-0.3 * f64::from(i))).collect(),
             acceptance: 1e-4,
             cost_lower_bound: None,
+            convex_fallback: true,
         }
     }
 }
@@ -180,7 +197,10 @@ pub enum Status {
     /// The cancellation flag was set.
     Cancelled,
     /// Regularisation passed `mu_max`: neither the backward pass nor the line
-    /// search could make progress.
+    /// search could make progress, with the exact Hessian nor (unless
+    /// `convex_fallback` is off) with the convex expansion after it. Also
+    /// where the convex expansion found a stationary point at once, which
+    /// its model cannot tell from a maximum.
     NoProgress,
 }
 
@@ -242,6 +262,10 @@ pub struct Summary {
     /// of the final model, larger values damp `K` and `d`. Meaningless
     /// without [`Summary::has_gains`].
     pub gains_regularization: f64,
+    /// The number of iterations completed when the solve fell back to the
+    /// cost's convex expansion (see [`Options::convex_fallback`]), or
+    /// `None` if it used the exact Hessian throughout.
+    pub convexified_after: Option<usize>,
 }
 
 /// Input the solver cannot work with.
@@ -472,6 +496,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut has_gains = false;
         let mut gains_current = false;
         let mut gains_mu = 0.0;
+        let mut convexified_after = None;
+        // Whether a step was accepted since the fallback to the convex
+        // expansion. Its model cannot tell a minimum from a maximum or a
+        // saddle (the curvature that would is what it drops): where it finds
+        // nothing to do at once, the exact model had found no descent either
+        // (an obstacle's centre held by the guess), and calling that point
+        // converged would be false.
+        let mut moved_since_convexified = false;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
@@ -481,7 +513,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // An interrupted linearisation leaves the derivatives half
                 // updated; the solve ends here, and the gains, from the
                 // pass before the accepted step, are flagged as such.
-                if let Some(status) = self.linearize(problem, &interrupted) {
+                let convex = convexified_after.is_some();
+                if let Some(status) = self.linearize(problem, convex, &interrupted) {
                     break 'outer status;
                 }
                 stale = false;
@@ -502,7 +535,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     Err(Unfinished::NotPositiveDefinite) => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
-                            break 'outer Status::NoProgress;
+                            if !options.convex_fallback || convexified_after.is_some() {
+                                break 'outer Status::NoProgress;
+                            }
+                            // Again from the same iterate, with the convex
+                            // expansion.
+                            convexified_after = Some(iterations);
+                            (mu, delta, stale) = (options.mu_init, 1.0, true);
+                            continue 'outer;
                         }
                         // Raising μ can take a dozen passes (μ from 1 past
                         // 1e11): unchecked, a 10 ms budget at N = 10000
@@ -525,8 +565,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 break Status::Converged;
             }
             let negligible = |bw: &Backward| -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs();
+            let stationary = if convexified_after.is_some() && !moved_since_convexified {
+                Status::NoProgress
+            } else {
+                Status::Converged
+            };
             if negligible(&bw) && mu <= options.mu_min {
-                break Status::Converged;
+                break stationary;
             }
             // The pass at μ = 0 below costs a backward pass: not after the
             // budget ran out.
@@ -553,7 +598,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         mu = 0.0;
                         gains_mu = 0.0;
                         if negligible(&bw) {
-                            break Status::Converged;
+                            break stationary;
                         }
                     }
                     // The gains of the pass at μ stay, about this iterate.
@@ -624,6 +669,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         && actual <= options.tolerance * cost.abs();
                     cost = new_cost;
                     accepted = true;
+                    moved_since_convexified = convexified_after.is_some();
                     break;
                 }
             }
@@ -646,7 +692,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             row.elapsed = start.elapsed();
             self.trace.push(row);
             if mu > options.mu_max {
-                break Status::NoProgress;
+                if !options.convex_fallback || convexified_after.is_some() {
+                    break Status::NoProgress;
+                }
+                convexified_after = Some(iterations);
+                (mu, delta, stale) = (options.mu_init, 1.0, true);
             }
         };
 
@@ -659,6 +709,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             has_gains,
             gains_about_previous_iterate: has_gains && !gains_current,
             gains_regularization: gains_mu,
+            convexified_after,
         })
     }
 
@@ -667,6 +718,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     fn linearize<D, C>(
         &mut self,
         problem: &Problem<D, C, NX>,
+        convex: bool,
         interrupted: &impl Fn() -> Option<Status>,
     ) -> Option<Status>
     where
@@ -684,7 +736,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             (self.A[k], self.B[k]) = problem.dynamics.linearize(x, u);
             let e = &mut self.stage[k];
             *e = StageExpansion::zeros();
-            problem.cost.stage_expand(k, x, u, e);
+            if convex {
+                problem.cost.stage_expand_convex(k, x, u, e);
+            } else {
+                problem.cost.stage_expand(k, x, u, e);
+            }
         }
         self.terminal = TerminalExpansion::zeros();
         problem
@@ -1041,7 +1097,10 @@ mod tests {
         // The documented interval, not POLL_EVERY: raising that must fail.
         let at_least = N / 128;
         let calls = Cell::new(0);
-        assert_eq!(solver.linearize(&problem, &poll(&calls, usize::MAX)), None);
+        assert_eq!(
+            solver.linearize(&problem, false, &poll(&calls, usize::MAX)),
+            None
+        );
         assert!(
             calls.get() >= at_least,
             "linearisation: {} polls",
@@ -1068,7 +1127,10 @@ mod tests {
     fn an_interrupted_backward_pass_leaves_the_gains_it_had() {
         let (mut solver, problem) = loaded();
         let never = Cell::new(0);
-        assert_eq!(solver.linearize(&problem, &poll(&never, usize::MAX)), None);
+        assert_eq!(
+            solver.linearize(&problem, false, &poll(&never, usize::MAX)),
+            None
+        );
         assert!(solver.backward(1e6, &poll(&never, usize::MAX)).is_ok());
         let (k, d) = (solver.K.clone(), solver.d.clone());
         // At μ = 1e3 the pass would give other gains; it stops at its

@@ -163,6 +163,36 @@ proptest! {
     }
 }
 
+proptest! {
+    #![proptest_config(ProptestConfig::with_cases(256))]
+
+    /// The convex expansion keeps the gradient and the curvature away from
+    /// the centre, and drops the negative curvature across: its Hessian is
+    /// the exact one's projection onto the positive semi-definite matrices.
+    #[test]
+    fn obstacle_convex_expansion_is_the_psd_projection(
+        x in state(), u in control(), c in prop::array::uniform2(-10.0..10.0f64), q in 0.0..2000.0f64,
+    ) {
+        let term = ExpObstacle { center: Vector2::from(c), weight: q, position: (0, 1) };
+        let (mut exact, mut convex) = (StageExpansion::<6, 2>::zeros(), StageExpansion::<6, 2>::zeros());
+        term.expand(0, &x, &u, &mut exact);
+        term.expand_convex(0, &x, &u, &mut convex);
+        prop_assert_eq!(exact.l_x, convex.l_x);
+        let h = exact.l_xx.fixed_view::<2, 2>(0, 0).into_owned();
+        let eig = h.symmetric_eigen();
+        let mut d = eig.eigenvalues;
+        d.iter_mut().for_each(|v| *v = v.max(0.0));
+        let projected = eig.eigenvectors * nalgebra::Matrix2::from_diagonal(&d) * eig.eigenvectors.transpose();
+        let got = convex.l_xx.fixed_view::<2, 2>(0, 0).into_owned();
+        let scale = h.amax().max(1e-300);
+        prop_assert!((got - projected).amax() <= 1e-9 * scale, "{} vs {}", got, projected);
+        // Nothing else is touched.
+        let mut rest = convex.l_xx;
+        rest.fixed_view_mut::<2, 2>(0, 0).fill(0.0);
+        prop_assert_eq!(rest.amax(), 0.0);
+    }
+}
+
 #[test]
 fn obstacle_hessian_is_indefinite() {
     let term = ExpObstacle {

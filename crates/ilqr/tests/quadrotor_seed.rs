@@ -54,6 +54,7 @@ fn tracking(goal: SVector<f64, 6>, q: f64, r: f64, qf: f64) -> ilqr::Objective<6
 fn seed_converges_to_the_reference_optimum() {
     let (_, s) = solve_seed();
     assert_eq!(s.status, Status::Converged);
+    assert_eq!(s.convexified_after, None, "the exact Hessian throughout");
     let rel = (s.cost - SEED_OPTIMUM).abs() / SEED_OPTIMUM;
     assert!(rel < 1e-4, "cost {} is {rel:e} from {SEED_OPTIMUM}", s.cost);
     assert!(s.initial_cost > 1e6, "hover start is far from optimal");
@@ -315,6 +316,39 @@ fn the_seed_over_a_long_horizon_converges() {
     assert!((end - goal()).norm() < 0.01, "ends at {end:?}");
 }
 
+/// A flight of 400 s (N = 8000 at dt = 0.05) from a guess a hair above
+/// hover (4.9051 N per rotor, hover is 4.905): the obstacle's negative
+/// curvature piles up over the horizon until no μ up to `mu_max` makes
+/// `Q_uu` positive definite, and the solve used to end `NoProgress` at
+/// iteration 0 with the guess. The convex fallback drops that curvature
+/// and goes on from the same iterate.
+#[test]
+fn a_very_long_flight_falls_back_to_the_convex_expansion() {
+    let n = 8000;
+    let problem = seed_problem(n, 0.05);
+    let guess = vec![Vector2::new(4.9051, 4.9051); n];
+    let exact_only = Options {
+        convex_fallback: false,
+        ..Options::default()
+    };
+    let (_, stuck) = solve_from(&problem, &guess, &exact_only);
+    assert_eq!(
+        (stuck.status, stuck.iterations, stuck.convexified_after),
+        (Status::NoProgress, 0, None),
+        "{stuck:?}"
+    );
+    let (solver, s) = solve_from(&problem, &guess, &Options::default());
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert_eq!(s.convexified_after, Some(0), "{s:?}");
+    assert!(s.cost < 0.05 * s.initial_cost, "{s:?}");
+    assert!(s.has_gains && !s.gains_about_previous_iterate, "{s:?}");
+    let end = solver.states()[n];
+    assert!((end - goal()).norm() < 0.01, "ends at {end:?}");
+    // Every accepted step lowered the cost, after the switch as before.
+    let costs: Vec<f64> = solver.trace().iter().map(|r| r.cost).collect();
+    assert!(costs.windows(2).all(|w| w[1] <= w[0]), "{costs:?}");
+}
+
 /// The budget is checked between the backward passes that raise μ, too: at
 /// `N = 2000` the first pass needs μ far above 1, a dozen passes that took
 /// 12 ms past a 10 ms budget at `N = 10000`. With no budget at all the
@@ -423,7 +457,10 @@ fn an_optimum_reached_to_round_off_is_converged_not_no_progress() {
 /// cone tip, where the gradient is zero and a heavily regularised step
 /// predicts no gain. `Q_uu` is indefinite there without μ, so the pass at
 /// μ = 0 fails and the solve still ends `NoProgress` with the initial
-/// guess (cost q·N = 1e5), not `Converged`.
+/// guess (cost q·N = 1e5), not `Converged`. The convex fallback, tried
+/// when μ passes its maximum, finds no step either: its model drops the
+/// curvature that makes the tip a maximum, and a point where it sees
+/// nothing to do at once is not called converged.
 #[test]
 fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     let centre = SVector::from([OBSTACLE[0], OBSTACLE[1], 0.0, 0.0, 0.0, 0.0]);
@@ -438,6 +475,7 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     let (_, s) = solve_from(&problem, &[Vector2::zeros(); 100], &Options::default());
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
     assert_eq!(s.cost, 1e5, "{s:?}");
+    assert!(s.convexified_after.is_some(), "{s:?}");
 }
 
 /// A start 0.1 mm from the centre of a steep obstacle (q = 1e6): `Q_uu` is
@@ -584,8 +622,9 @@ fn the_reported_gains_regularization_is_the_one_the_gains_were_built_with() {
 }
 
 /// Gains about the iterate before the returned one are flagged. With
-/// `mu_max = 10` the seed takes one step, then the backward pass about the
-/// new iterate fails at every μ up to 10: `NoProgress` after 1 iteration.
+/// `mu_max = 10` (and no convex fallback) the seed takes one step, then the
+/// backward pass about the new iterate fails at every μ up to 10:
+/// `NoProgress` after 1 iteration.
 /// The workspace still holds the first iterate's gains, which differ from
 /// the new iterate's own (checked at the last knot), so
 /// `gains_about_previous_iterate` must say so. Other exits at the same
@@ -597,6 +636,7 @@ fn gains_about_the_previous_iterate_are_flagged() {
     let problem = seed_problem(100, 0.05);
     let options = Options {
         mu_max: 10.0,
+        convex_fallback: false,
         ..Options::default()
     };
     let (solver, s) = solve_problem(&problem, &options);

@@ -537,6 +537,12 @@ class SolveResult:
         gains: The feedback policy, or ``None`` when ``output.gains`` was false
             or no backward pass completed (0 iterations, no policy to give).
         trace: One entry per iteration, or ``None`` when ``output.trace`` was false.
+        convexified_after_iteration: ``None`` when the solve used the cost's
+            exact Hessian throughout; otherwise the iterations completed when
+            it fell back to a convex model of the cost (the exact one left no
+            descent at any regularisation, e.g. over a very long horizon).
+            A ``converged`` after that is a stationary point whose
+            second-order condition was not checked.
         request_id: The ``x-request-id`` of the answer (not part of equality).
     """
 
@@ -552,6 +558,7 @@ class SolveResult:
     queue_time_ms: float
     gains: Optional[Gains] = None
     trace: Optional[List[TraceEntry]] = None
+    convexified_after_iteration: Optional[int] = None
     request_id: Optional[str] = field(default=None, compare=False)
 
     @classmethod
@@ -568,6 +575,7 @@ class SolveResult:
             raise ValueError(f"/status: expected a string, got {status!r}")
         gains = data.get("gains")
         trace = data.get("trace")
+        convexified = data.get("convexified_after_iteration")
         return cls(
             status=status,
             cost=_float(_require(data, "cost", "(result)"), "/cost"),
@@ -583,6 +591,9 @@ class SolveResult:
             trace=None if trace is None else [
                 TraceEntry.from_dict(entry, f"/trace/{i}") for i, entry in enumerate(_list(trace, "/trace"))
             ],
+            convexified_after_iteration=(
+                None if convexified is None else _int(convexified, "/convexified_after_iteration")
+            ),
             request_id=request_id,
         )
 
