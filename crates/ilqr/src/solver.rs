@@ -513,8 +513,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // An interrupted linearisation leaves the derivatives half
                 // updated; the solve ends here, and the gains, from the
                 // pass before the accepted step, are flagged as such.
-                let convex = convexified_after.is_some();
-                if let Some(status) = self.linearize(problem, convex, &interrupted) {
+                // One copy of the loop per expansion, each without a branch
+                // per knot (a branch cost the seed solve about 2%).
+                let interrupted_at = if convexified_after.is_some() {
+                    self.linearize::<true, _, _>(problem, &interrupted)
+                } else {
+                    self.linearize::<false, _, _>(problem, &interrupted)
+                };
+                if let Some(status) = interrupted_at {
                     break 'outer status;
                 }
                 stale = false;
@@ -715,10 +721,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
 
     /// Fill `A`, `B` and the cost expansions along `(xs, us)`. Returns how
     /// the solve must end if `interrupted` says so on one of its polls.
-    fn linearize<D, C>(
+    fn linearize<const CONVEX: bool, D, C>(
         &mut self,
         problem: &Problem<D, C, NX>,
-        convex: bool,
         interrupted: &impl Fn() -> Option<Status>,
     ) -> Option<Status>
     where
@@ -736,7 +741,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             (self.A[k], self.B[k]) = problem.dynamics.linearize(x, u);
             let e = &mut self.stage[k];
             *e = StageExpansion::zeros();
-            if convex {
+            if CONVEX {
                 problem.cost.stage_expand_convex(k, x, u, e);
             } else {
                 problem.cost.stage_expand(k, x, u, e);
@@ -1098,7 +1103,7 @@ mod tests {
         let at_least = N / 128;
         let calls = Cell::new(0);
         assert_eq!(
-            solver.linearize(&problem, false, &poll(&calls, usize::MAX)),
+            solver.linearize::<false, _, _>(&problem, &poll(&calls, usize::MAX)),
             None
         );
         assert!(
@@ -1128,7 +1133,7 @@ mod tests {
         let (mut solver, problem) = loaded();
         let never = Cell::new(0);
         assert_eq!(
-            solver.linearize(&problem, false, &poll(&never, usize::MAX)),
+            solver.linearize::<false, _, _>(&problem, &poll(&never, usize::MAX)),
             None
         );
         assert!(solver.backward(1e6, &poll(&never, usize::MAX)).is_ok());
