@@ -514,7 +514,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // updated; the solve ends here, and the gains, from the
                 // pass before the accepted step, are flagged as such.
                 // One copy of the loop per expansion, each without a branch
-                // per knot (a branch cost the seed solve about 2%).
+                // per knot.
                 let interrupted_at = if convexified_after.is_some() {
                     self.linearize::<true, _, _>(problem, &interrupted)
                 } else {
