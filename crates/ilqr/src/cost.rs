@@ -348,10 +348,13 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
         self.add(&grad, &hess, e);
     }
 
-    /// The Hessian's negative curvature dropped. The exact Hessian has the
-    /// eigenvalue `q e^{−ρ}` along the direction `n` away from the centre
-    /// and `−q e^{−ρ}/ρ` across it; keeping `q e^{−ρ} n nᵀ` is its
-    /// projection onto the positive semi-definite matrices, in closed form.
+    /// The Hessian's negative curvature dropped: its projection onto the
+    /// positive semi-definite matrices, in closed form. From `MIN_DISTANCE`
+    /// out, the exact Hessian has the eigenvalue `q e^{−ρ}` along the
+    /// direction `n` away from the centre and `−q e^{−ρ}/ρ` across it, so
+    /// the projection is `q e^{−ρ} n nᵀ`. Closer in, where the exact one is
+    /// evaluated at the clamped distance, both eigenvalues are negative and
+    /// the projection is zero.
     fn expand_convex(
         &self,
         _k: usize,
@@ -361,9 +364,13 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
     ) {
         let (value, grad, _) = self.position_model(x);
         let delta = self.offset(x);
-        let r = delta.norm().max(Self::MIN_DISTANCE);
-        let outer = delta * delta.transpose() / (r * r);
-        self.add(&grad, &(outer * value), e);
+        let rho = delta.norm();
+        let hess = if rho >= Self::MIN_DISTANCE {
+            delta * delta.transpose() * (value / (rho * rho))
+        } else {
+            Matrix2::zeros()
+        };
+        self.add(&grad, &hess, e);
     }
 }
 

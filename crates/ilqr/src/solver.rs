@@ -545,9 +545,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                                 break 'outer Status::NoProgress;
                             }
                             // Again from the same iterate, with the convex
-                            // expansion.
+                            // expansion. A convergence the exact model's
+                            // last step claimed is not carried over: the
+                            // convex model must find it for itself, after a
+                            // step of its own.
                             convexified_after = Some(iterations);
-                            (mu, delta, stale) = (options.mu_init, 1.0, true);
+                            (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
                             continue 'outer;
                         }
                         // Raising μ can take a dozen passes (μ from 1 past
@@ -702,7 +705,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     break Status::NoProgress;
                 }
                 convexified_after = Some(iterations);
-                (mu, delta, stale) = (options.mu_init, 1.0, true);
+                (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
             }
         };
 

@@ -172,8 +172,15 @@ proptest! {
     #[test]
     fn obstacle_convex_expansion_is_the_psd_projection(
         x in state(), u in control(), c in prop::array::uniform2(-10.0..10.0f64), q in 0.0..2000.0f64,
+        // Half the cases within 2 mm of the centre, across the clamp at 1 mm.
+        near in prop::option::of((0.0..2e-3f64, 0.0..std::f64::consts::TAU)),
     ) {
         let term = ExpObstacle { center: Vector2::from(c), weight: q, position: (0, 1) };
+        let mut x = x;
+        if let Some((rho, angle)) = near {
+            x[0] = c[0] + rho * angle.cos();
+            x[1] = c[1] + rho * angle.sin();
+        }
         let (mut exact, mut convex) = (StageExpansion::<6, 2>::zeros(), StageExpansion::<6, 2>::zeros());
         term.expand(0, &x, &u, &mut exact);
         term.expand_convex(0, &x, &u, &mut convex);

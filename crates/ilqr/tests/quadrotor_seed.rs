@@ -349,6 +349,33 @@ fn a_very_long_flight_falls_back_to_the_convex_expansion() {
     assert!(costs.windows(2).all(|w| w[1] <= w[0]), "{costs:?}");
 }
 
+/// A convergence claimed by the exact model's last step is not carried
+/// over the fallback. With `mu_max = 10` and a loose tolerance, the seed's
+/// first step counts as converged, then the exact pass about the new
+/// iterate fails at every μ up to 10: the convex model finds that iterate
+/// stationary at once, which it cannot tell from a maximum, so the solve
+/// ends `NoProgress` there, as it did before the fallback existed.
+#[test]
+fn a_convergence_claimed_before_the_fallback_is_not_carried_over() {
+    let problem = seed_problem(100, 0.05);
+    let loose = |convex_fallback| Options {
+        mu_max: 10.0,
+        tolerance: 0.99,
+        convex_fallback,
+        ..Options::default()
+    };
+    let (_, exact) = solve_problem(&problem, &loose(false));
+    assert_eq!(
+        (exact.status, exact.iterations),
+        (Status::NoProgress, 1),
+        "{exact:?}"
+    );
+    let (_, s) = solve_problem(&problem, &loose(true));
+    assert_eq!(s.convexified_after, Some(1), "{s:?}");
+    assert_ne!(s.status, Status::Converged, "{s:?}");
+    assert!(s.cost <= exact.cost, "{s:?} against {exact:?}");
+}
+
 /// The budget is checked between the backward passes that raise μ, too: at
 /// `N = 2000` the first pass needs μ far above 1, a dozen passes that took
 /// 12 ms past a 10 ms budget at `N = 10000`. With no budget at all the
