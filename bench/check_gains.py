@@ -2,7 +2,7 @@
 
     .venv-bench/bin/python bench/check_gains.py target/release/ilqr-service PROBLEM.json RUNS
 
-Solves PROBLEM.json (merged over examples/seed.json, so `{"dt": 4}` works)
+Solves PROBLEM.json (merged over examples/seed.json, so `{"horizon": 2000}` works)
 RUNS times with `BINARY solve PROBLEM -o FILE` and, for each answer,
 recomputes the gains of the last knot, where the value function is the
 terminal cost exactly: K = -(Q_uu + mu I)^-1 Q_ux and d = -(Q_uu + mu I)^-1

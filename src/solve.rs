@@ -92,8 +92,8 @@ pub struct SolveResult {
     pub controls: Vec<[f64; 2]>,
     /// The time-varying feedback policy. Absent when `output.gains` is
     /// false, and when no backward pass completed: a solve that ended
-    /// (`time_limit`, `cancelled` or `no_progress`, 0 iterations) before its
-    /// first backward pass completed has no policy to give.
+    /// (`time_limit` or `cancelled`, 0 iterations) before its first
+    /// backward pass completed has no policy to give.
     // Left out when None, never `null`: the schema must not offer null.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
@@ -105,9 +105,10 @@ pub struct SolveResult {
     /// Absent when the solve used the cost's exact Hessian throughout (the
     /// seed and nearly every problem). Otherwise the number of iterations
     /// completed when it fell back to a convex model of the cost: the
-    /// exact Hessian left `Q_uu + μI` indefinite at every μ up to 1e20
-    /// (obstacles' negative curvature piled up over a long horizon, a flight
-    /// of 200 s or more say), and the solve went on with the obstacles'
+    /// exact Hessian gave no progress at any μ up to 1e20 (`Q_uu + μI`
+    /// indefinite, or no step the line search accepts: obstacles' negative
+    /// curvature piled up over a long horizon, a flight of 200 s or more,
+    /// or steps of seconds), and the solve went on with the obstacles'
     /// curvature across their radial direction dropped. A `converged` after
     /// that means a stationary point of the true cost whose second-order
     /// condition was not checked; the gains come from the convex model.
@@ -137,8 +138,8 @@ pub struct Gains {
     #[schema(minimum = 0.0)]
     pub regularization: f64,
     /// False: the gains were computed about the returned `states` and
-    /// `controls`. True when the solve stopped (`time_limit`, `cancelled` or
-    /// `no_progress`) after an accepted step but before the backward pass
+    /// `controls`. True when the solve stopped (`time_limit` or
+    /// `cancelled`) after an accepted step but before the backward pass
     /// about the new iterate completed (while linearising about it, during
     /// the pass, or while raising the regularisation): the gains are then
     /// the previous iterate's, one accepted step away: a fallback. At the

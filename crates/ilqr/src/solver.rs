@@ -243,13 +243,14 @@ pub struct Summary {
     /// Whether a backward pass completed, so that [`Solver::feedback`] and
     /// [`Solver::feedforward`] hold a policy. False only when the solve
     /// ended before its first backward pass completed (a time limit or
-    /// cancellation during the first linearisation or pass, or
-    /// [`Status::NoProgress`] while raising μ for it, all at iteration 0);
-    /// the gains are then zero, which is no policy at all.
+    /// cancellation during the first linearisation or pass, or, without
+    /// [`Options::convex_fallback`], [`Status::NoProgress`] while raising μ
+    /// for it, all at iteration 0); the gains are then zero, which is no
+    /// policy at all.
     pub has_gains: bool,
     /// Whether the gains are about the iterate before the returned one: the
-    /// solve stopped (a time limit, cancellation or [`Status::NoProgress`])
-    /// after an accepted step, before the backward pass about the new
+    /// solve stopped (a time limit, cancellation, or [`Status::NoProgress`]
+    /// without [`Options::convex_fallback`]) after an accepted step, before the backward pass about the new
     /// iterate completed (during its linearisation, the pass itself, or
     /// while raising μ). `K` is then the policy of a trajectory one step
     /// away (at the last knot 0–12% off with one to six obstacles, 2–60%
@@ -405,8 +406,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// `u_k = ū_k + K_k (x_k − x̄_k)`. They come from the last complete
     /// backward pass, which was about the returned trajectory itself unless
     /// the solve stopped between an accepted step and the completion of the
-    /// backward pass about it ([`Status::NoProgress`] while raising μ, or a
-    /// time limit or cancellation there or during the linearisation): then
+    /// backward pass about it (a time limit or cancellation while raising μ
+    /// or during the linearisation, or [`Status::NoProgress`] while raising
+    /// μ without [`Options::convex_fallback`]): then
     /// they are about the iterate before the last accepted step, or zero if
     /// no backward pass had completed yet ([`Summary::has_gains`] false;
     /// [`Summary::gains_about_previous_iterate`] tells the two apart).
