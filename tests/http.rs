@@ -720,6 +720,24 @@ async fn docs_and_spec_are_served() {
     // Swagger UI's own files are served, and an unknown one is our 404.
     assert_eq!(s.get("/docs/swagger-ui.css").await.status(), 200);
     problem_of(s.get("/docs/nope.js").await, StatusCode::NOT_FOUND).await;
+    // The page asks for the spec by a relative URL, which resolves to the
+    // served spec from /docs/ and, behind a proxy's path prefix, to the
+    // spec under the same prefix.
+    let init = s
+        .get("/docs/swagger-initializer.js")
+        .await
+        .text()
+        .await
+        .unwrap();
+    let url = init
+        .split("\"url\": \"")
+        .nth(1)
+        .and_then(|rest| rest.split('"').next())
+        .unwrap_or_else(|| panic!("no spec URL in {init}"));
+    let page = reqwest::Url::parse(&s.url("/docs/")).unwrap();
+    assert_eq!(page.join(url).unwrap().path(), "/openapi.json");
+    let behind_proxy = reqwest::Url::parse("https://example.org/ilqr/docs/").unwrap();
+    assert_eq!(behind_proxy.join(url).unwrap().path(), "/ilqr/openapi.json");
     assert_eq!(s.get("/healthz").await.status(), 200);
     assert_eq!(s.get("/readyz").await.status(), 200);
 }

@@ -123,8 +123,15 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
     let spec = with_docs_routes(spec);
     let router = router
         .merge(
-            axum::Router::from(SwaggerUi::new("/docs").url("/openapi.json", spec))
-                .layer(axum::middleware::map_response(docs_not_found)),
+            // The page fetches the spec by a relative URL, so /docs/ still
+            // finds it behind a proxy that adds a path prefix
+            // (/ilqr/docs/ → /ilqr/openapi.json).
+            axum::Router::from(
+                SwaggerUi::new("/docs")
+                    .url("/openapi.json", spec)
+                    .config(utoipa_swagger_ui::Config::new(["../openapi.json"])),
+            )
+            .layer(axum::middleware::map_response(docs_not_found)),
         )
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
