@@ -709,6 +709,29 @@ async fn metrics_count_requests_solves_and_rejections() {
     }
 }
 
+/// The served spec carries this server's limits; everything else is the
+/// committed spec, unchanged.
+#[tokio::test]
+async fn the_served_spec_states_this_servers_limits() {
+    let s = Server::start(Config {
+        max_horizon: 500,
+        max_time_limit_ms: 2000,
+        default_time_limit_ms: 1500,
+        ..Config::default()
+    })
+    .await;
+    let served: Value = s.get("/openapi.json").await.json().await.unwrap();
+    let path = concat!(env!("CARGO_MANIFEST_DIR"), "/openapi/openapi.json");
+    let mut expected: Value =
+        serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
+    let schemas = &mut expected["components"]["schemas"];
+    schemas["ProblemSpec"]["properties"]["horizon"]["maximum"] = json!(500);
+    let ms = &mut schemas["SolverSpec"]["properties"]["time_limit_ms"];
+    ms["maximum"] = json!(2000);
+    ms["default"] = json!(1500);
+    assert_eq!(served, expected);
+}
+
 #[tokio::test]
 async fn docs_and_spec_are_served() {
     let s = Server::default().await;

@@ -87,7 +87,8 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
         vec![HttpMethod::Get],
         get(
             "openapi_json",
-            "This OpenAPI 3.1 document (also `ilqr-service openapi`)",
+            "This OpenAPI 3.1 document, with this server's limits on `horizon` and \
+             `time_limit_ms` (`ilqr-service openapi` prints the code's)",
             "application/json",
             "The OpenAPI document",
             Type::Object,
@@ -108,6 +109,40 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
     spec
 }
 
+/// The spec as this server serves it: the limits its configuration sets
+/// (`--max-horizon`, `--max-time-limit-ms`, `--default-time-limit-ms`) in
+/// place of the code's, so that a client validating against the served
+/// spec gets this server's bounds. The committed `openapi/openapi.json` and
+/// `ilqr-service openapi` keep the code's (no time limit maximum, as for
+/// the CLI).
+fn with_limits(
+    config: &super::Config,
+) -> impl FnOnce(utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi + use<> {
+    let (max_horizon, max_ms, default_ms) = (
+        config.max_horizon,
+        config.max_time_limit_ms,
+        config.default_time_limit_ms,
+    );
+    move |spec| {
+        let Ok(mut doc) = serde_json::to_value(&spec) else {
+            return spec;
+        };
+        if let Some(horizon) =
+            doc.pointer_mut("/components/schemas/ProblemSpec/properties/horizon/maximum")
+        {
+            *horizon = max_horizon.into();
+        }
+        if let Some(ms) = doc
+            .pointer_mut("/components/schemas/SolverSpec/properties/time_limit_ms")
+            .and_then(serde_json::Value::as_object_mut)
+        {
+            ms.insert("maximum".into(), max_ms.into());
+            ms.insert("default".into(), default_ms.into());
+        }
+        serde_json::from_value(doc).unwrap_or(spec)
+    }
+}
+
 /// The OpenAPI document as pretty JSON, as committed in `openapi/openapi.json`.
 pub fn openapi_json() -> String {
     openapi()
@@ -119,8 +154,9 @@ pub fn openapi_json() -> String {
 pub fn app(state: Arc<AppState>) -> axum::Router {
     let body_limit = state.config.max_body_bytes;
     let gzip_level = state.config.gzip_level;
+    let limits = with_limits(&state.config);
     let (router, spec) = api_router().with_state(state).split_for_parts();
-    let spec = with_docs_routes(spec);
+    let spec = limits(with_docs_routes(spec));
     let router = router
         .merge(
             // The page fetches the spec by a relative URL, so /docs/ still
