@@ -77,6 +77,39 @@ fn settings_out_of_range_are_rejected_before_serving() {
     }
 }
 
+/// A bind address that is not IP:PORT is refused with a message naming
+/// both the flag and the variable (the value may come from either).
+#[test]
+fn a_bind_address_must_be_ip_and_port() {
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .arg("serve")
+        .env("ILQR_BIND", "localhost:0")
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::piped())
+        .spawn()
+        .unwrap();
+    // Accepted by mistake, it would serve forever: kill it after 10 s.
+    let started = std::time::Instant::now();
+    while child.try_wait().unwrap().is_none() {
+        if started.elapsed() > std::time::Duration::from_secs(10) {
+            let _ = child.kill();
+            let _ = child.wait();
+            panic!("ILQR_BIND=localhost:0 was accepted");
+        }
+        std::thread::sleep(std::time::Duration::from_millis(20));
+    }
+    let out = child.wait_with_output().unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains(
+            "--bind / ILQR_BIND takes IP:PORT, e.g. 0.0.0.0:8080, 127.0.0.1:8080 or [::]:8080 \
+             (host names are not resolved), got \"localhost:0\""
+        ),
+        "{stderr}"
+    );
+}
+
 /// Kills the server child when the test ends, whether it passes or not.
 struct Child(std::process::Child);
 

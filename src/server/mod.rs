@@ -51,11 +51,26 @@ use pool::Pool;
 /// need more (100 obstacles: 4.2 KB compact, 9.6 KB pretty-printed).
 pub const MIN_BODY_BYTES: usize = 4096;
 
+/// `--bind` / `ILQR_BIND`: an IP address and port, with an error that says
+/// so (and names both spellings: clap's own names only the flag, and the
+/// value may have come from the environment).
+fn parse_bind(value: &str) -> Result<SocketAddr, String> {
+    value.parse().map_err(|_| {
+        format!(
+            "--bind / ILQR_BIND takes IP:PORT, e.g. 0.0.0.0:8080, 127.0.0.1:8080 or \
+             [::]:8080 (host names are not resolved), got {value:?}"
+        )
+    })
+}
+
 /// Service configuration: flags, each also read from an environment variable.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Config {
-    /// Address to listen on.
-    #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080")]
+    /// Address to listen on: IP:PORT (`0.0.0.0:8080` for every IPv4
+    /// interface, `127.0.0.1:8080` for this machine only, `[::]:8080` for
+    /// IPv6). Host names are not resolved: which address `localhost` means
+    /// differs between machines.
+    #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080", value_parser = parse_bind)]
     pub bind: SocketAddr,
     /// Solver threads, at least 1 (default: the available cores).
     #[arg(long, env = "ILQR_WORKERS")]
