@@ -17,8 +17,10 @@
 //!   ([`StateTracking`], [`ControlEffort`], [`ExpObstacle`], [`TerminalTracking`]),
 //!   summed by [`Objective`].
 //! * [`solver`]: the iLQR driver loop (backward pass eqs. 31–48, forward pass
-//!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation, its
-//!   [`Options`], the [`Status`] that says how a solve ended and the per-iteration
+//!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation and,
+//!   where no regularisation helps, a fall back to the cost's convex
+//!   expansion ([`Cost::stage_expand_convex`]); its [`Options`], the
+//!   [`Status`] that says how a solve ended and the per-iteration
 //!   [`TraceRow`].
 //! * `kernels` (private): the column-major small-matrix kernels the Riccati
 //!   step ([`riccati_step`]) is written in.
