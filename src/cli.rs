@@ -224,7 +224,7 @@ impl Signals {
             rt.block_on(async {
                 let mut first = true;
                 loop {
-                    let received = next_signal().await;
+                    let received = server::next_signal().await;
                     if finishing.load(Ordering::SeqCst) {
                         eprintln!("finishing: writing the result");
                     } else if first {
@@ -247,32 +247,6 @@ impl Signals {
             .name("signals".into())
             .spawn(watch);
         signals
-    }
-}
-
-/// The next SIGINT or SIGTERM, as the exit code it calls for (128 + its
-/// number).
-async fn next_signal() -> u8 {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        let term = async {
-            match signal(SignalKind::terminate()) {
-                Ok(mut s) => {
-                    s.recv().await;
-                }
-                Err(_) => std::future::pending::<()>().await,
-            }
-        };
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => 130,
-            () = term => 143,
-        }
-    }
-    #[cfg(not(unix))]
-    {
-        let _ = tokio::signal::ctrl_c().await;
-        130
     }
 }
 
