@@ -474,18 +474,34 @@ impl From<FieldError> for Invalid {
     }
 }
 
-#[derive(Default)]
+#[derive(Debug, Clone, PartialEq, Default)]
 struct Checker {
     found: Invalid,
     /// Members taken out of the document as wrong shapes: no error is
     /// reported at or under them (they hold defaults now).
     skip: Vec<String>,
     /// Keys given twice, already reported: no second error at exactly
-    /// these pointers (the values under them are checked as usual).
+    /// these pointers (the values under them are checked as usual). At
+    /// most [`MAX_REPORTED_ERRORS`] of them, so that looking one up stays
+    /// cheap on a hostile document; repeats past those are only counted.
     repeated: Vec<String>,
 }
 
 impl Checker {
+    /// A key given twice in its object, reported once however often.
+    fn repeat(&mut self, pointer: &str) {
+        if self.repeated.iter().any(|r| r == pointer) {
+            return;
+        }
+        self.push(
+            pointer,
+            "this key appears more than once in its object; give it once".into(),
+        );
+        if self.repeated.len() < MAX_REPORTED_ERRORS {
+            self.repeated.push(pointer.to_owned());
+        }
+    }
+
     /// Whether `pointer` is at or under a taken-out member.
     fn skips(&self, pointer: &str) -> bool {
         self.skip.iter().any(|r| is_at_or_under(pointer, r))
@@ -758,31 +774,29 @@ pub enum ParseError {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Shapes {
     /// The keys given twice, then the wrong shapes (object keys in
-    /// alphabetical order).
-    pub found: Invalid,
+    /// alphabetical order); the members taken out and the repeated keys,
+    /// so that the range checks of the rest say nothing more about them.
+    checker: Checker,
     /// The document read without them (each taken-out member reads as its
     /// default), or `None` when that was not possible: the root is not an
     /// object, or the retry budget ran out (see [`parse`]).
     rest: Option<ProblemSpec>,
-    /// Pointers of the members taken out.
-    removed: Vec<String>,
-    /// Pointers of the keys given twice (reported already).
-    repeated: Vec<String>,
 }
 
 impl Shapes {
     fn one(error: FieldError) -> Box<Self> {
         Box::new(Self {
-            found: error.into(),
+            checker: Checker {
+                found: error.into(),
+                ..Checker::default()
+            },
             rest: None,
-            removed: Vec::new(),
-            repeated: Vec::new(),
         })
     }
 
     /// The first wrong shape (there is always one).
     pub fn first(&self) -> &FieldError {
-        &self.found.errors[0]
+        &self.checker.found.errors[0]
     }
 
     /// The wrong shapes, then the out-of-range values among the rest of the
@@ -791,10 +805,11 @@ impl Shapes {
     /// skipped (it reads as its default, which says nothing about what was
     /// sent): a bad `horizon` does not also make `initial_controls` "the
     /// wrong number of rows for a horizon of 100".
-    pub fn with_range_errors(mut self, limits: &Limits) -> Invalid {
+    pub fn with_range_errors(self, limits: &Limits) -> Invalid {
+        let Self { mut checker, rest } = self;
         // A count's type error was written without the limits; say the
         // configured ones, as the range check would.
-        for e in &mut self.found.errors {
+        for e in &mut checker.found.errors {
             let (generic, actual) = match e.pointer.as_str() {
                 "/horizon" => (
                     HORIZON_EXPECTED,
@@ -811,16 +826,10 @@ impl Shapes {
             };
             e.detail = e.detail.replace(generic, &actual);
         }
-        let Some(rest) = &self.rest else {
-            return self.found;
-        };
-        let mut v = Checker {
-            found: self.found,
-            skip: self.removed,
-            repeated: self.repeated,
-        };
-        rest.check(limits, &mut v);
-        v.found
+        if let Some(rest) = rest {
+            rest.check(limits, &mut checker);
+        }
+        checker.found
     }
 }
 
@@ -860,31 +869,21 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         Some(rest) => (rest, BOM.len()),
         None => (bytes, 0),
     };
-    let mut repeats = Repeats::default();
+    // Repeated keys are reported while reading; the value kept is the last
+    // one given, checked like any other.
+    let mut shapes = Checker::default();
     let mut path = String::new();
     let mut json = serde_json::Deserializer::from_slice(bytes);
     let mut value = serde::de::DeserializeSeed::deserialize(
         ValueNoting {
             path: &mut path,
-            repeats: &mut repeats,
+            checker: &mut shapes,
         },
         &mut json,
     )
     .and_then(|value| json.end().map(|()| value))
     .map_err(|e| unreadable(bytes, skipped, &path, e))?;
-    let mut shapes = Checker::default();
-    for pointer in repeats.pointers {
-        // The value read is the last one given; it is checked like any
-        // other, but its key is not reported twice.
-        shapes.push(
-            &pointer,
-            "this key appears more than once in its object; give it once".into(),
-        );
-        shapes.repeated.push(pointer);
-    }
-    shapes.found.unlisted += repeats.more;
     let reads = (RETRY_BYTES / bytes.len().max(1)).clamp(1, MAX_REPORTED_ERRORS);
-    let mut removed = Vec::new();
     let mut incomplete = true;
     for _ in 0..reads {
         // Through `ObjectOnly` like every nested struct: serde alone would
@@ -893,10 +892,8 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
             Ok(spec) if shapes.found.errors.is_empty() => return Ok(spec),
             Ok(spec) => {
                 return Err(ParseError::Shape(Box::new(Shapes {
-                    found: shapes.found,
+                    checker: shapes,
                     rest: Some(spec),
-                    removed,
-                    repeated: shapes.repeated,
                 })));
             }
             Err(e) => shape_error(e),
@@ -904,7 +901,11 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         // A member taken out before and now missing: take out the member
         // above it instead (an obstacle without its `center` cannot be
         // read, so the obstacles go), without a second error.
-        let from = match removed.iter().find(|r| is_at_or_under(&error.pointer, r)) {
+        let from = match shapes
+            .skip
+            .iter()
+            .find(|r| is_at_or_under(&error.pointer, r))
+        {
             Some(r) => parent(r).to_owned(),
             None => {
                 shapes.push(&error.pointer, error.detail);
@@ -912,7 +913,7 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
             }
         };
         match take_out(&mut value, &from) {
-            Some(member) => removed.push(member),
+            Some(member) => shapes.skip.push(member),
             // The root itself is wrong: there is nothing else to check.
             None => {
                 incomplete = false;
@@ -922,10 +923,8 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     }
     shapes.found.incomplete = incomplete;
     Err(ParseError::Shape(Box::new(Shapes {
-        found: shapes.found,
+        checker: shapes,
         rest: None,
-        removed,
-        repeated: shapes.repeated,
     })))
 }
 
@@ -1069,38 +1068,14 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
-/// and notes the pointers of keys that repeat within their object
+/// and reports the keys that repeat within their object to `checker`
 /// (`Value` alone keeps the last silently). It reads on after a repeat, so a
 /// syntax error anywhere still wins (400 over 422). Nesting is bounded by
 /// serde_json's recursion limit (128), like any parse.
 struct ValueNoting<'a> {
     /// The pointer of the value being read.
     path: &'a mut String,
-    repeats: &'a mut Repeats,
-}
-
-/// Keys given more than once in their object.
-#[derive(Default)]
-struct Repeats {
-    /// Their pointers, each once, in document order, up to
-    /// [`MAX_REPORTED_ERRORS`] (so that checking for a pointer already
-    /// noted stays cheap on a hostile document).
-    pointers: Vec<String>,
-    /// Repeats past those.
-    more: usize,
-}
-
-impl Repeats {
-    fn note(&mut self, pointer: &str) {
-        if self.pointers.iter().any(|p| p == pointer) {
-            return;
-        }
-        if self.pointers.len() < MAX_REPORTED_ERRORS {
-            self.pointers.push(pointer.to_owned());
-        } else {
-            self.more += 1;
-        }
-    }
+    checker: &'a mut Checker,
 }
 
 impl<'de> serde::de::DeserializeSeed<'de> for ValueNoting<'_> {
@@ -1126,10 +1101,10 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             self.path.push_str(&escape_token(&key));
             let value = map.next_value_seed(ValueNoting {
                 path: self.path,
-                repeats: self.repeats,
+                checker: self.checker,
             })?;
             if object.insert(key, value).is_some() {
-                self.repeats.note(self.path);
+                self.checker.repeat(self.path);
             }
             self.path.truncate(len);
         }
@@ -1144,7 +1119,7 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             let _ = fmt::Write::write_fmt(self.path, format_args!("/{}", items.len()));
             let item = seq.next_element_seed(ValueNoting {
                 path: self.path,
-                repeats: self.repeats,
+                checker: self.checker,
             })?;
             self.path.truncate(len);
             match item {
