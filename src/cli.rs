@@ -58,8 +58,11 @@ enum Command {
 /// failure, 2 on invalid input and 130 or 143 for a `solve` stopped by
 /// SIGINT or SIGTERM.
 pub fn main() -> ExitCode {
-    let cli = Cli::parse();
-    match cli.command {
+    // No subcommand means `serve`, with its flags from the environment.
+    let command = parse_or_exit(std::env::args_os().collect())
+        .command
+        .or_else(|| parse_or_exit(vec!["ilqr-service".into(), "serve".into()]).command);
+    match command {
         None => serve(Config::default()),
         Some(Command::Serve(config)) => serve(config),
         Some(Command::Solve { problem, output }) => solve_file(problem, output),
@@ -77,6 +80,59 @@ pub fn main() -> ExitCode {
             }
         }
     }
+}
+
+fn parse_or_exit(args: Vec<std::ffi::OsString>) -> Cli {
+    Cli::try_parse_from(&args).unwrap_or_else(|e| name_env_source(e, args).exit())
+}
+
+/// A flag's value that came from its environment variable is reported
+/// under the variable's name: clap names the flag (`invalid value 'abc'
+/// for '--workers <WORKERS>'`) even when the command line has no such
+/// flag, which sends a container user looking in the wrong place.
+fn name_env_source(
+    mut err: clap::Error,
+    args: impl IntoIterator<Item = std::ffi::OsString>,
+) -> clap::Error {
+    use clap::CommandFactory;
+    use clap::error::{ContextKind, ContextValue, ErrorKind};
+    if !matches!(
+        err.kind(),
+        ErrorKind::ValueValidation | ErrorKind::InvalidValue
+    ) {
+        return err;
+    }
+    let Some(ContextValue::String(label)) = err.get(ContextKind::InvalidArg) else {
+        return err;
+    };
+    // "--workers <WORKERS>" -> "workers"
+    let Some(long) = label
+        .strip_prefix("--")
+        .and_then(|l| l.split(' ').next())
+        .map(str::to_owned)
+    else {
+        return err;
+    };
+    let flag = format!("--{long}");
+    let on_command_line = args.into_iter().any(|a| {
+        a.to_str()
+            .is_some_and(|a| a == flag || a.starts_with(&format!("{flag}=")))
+    });
+    if on_command_line {
+        return err;
+    }
+    let cmd = Cli::command();
+    let env = std::iter::once(&cmd)
+        .chain(cmd.get_subcommands())
+        .flat_map(clap::Command::get_arguments)
+        .find(|a| a.get_long() == Some(long.as_str()))
+        .and_then(|a| a.get_env())
+        .and_then(|e| e.to_str())
+        .map(str::to_owned);
+    if let Some(env) = env {
+        err.insert(ContextKind::InvalidArg, ContextValue::String(env));
+    }
+    err
 }
 
 /// Where a service started with the same environment listens: `ILQR_BIND`

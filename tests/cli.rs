@@ -110,6 +110,55 @@ fn a_bind_address_must_be_ip_and_port() {
     );
 }
 
+/// A bad value from an environment variable is reported under the
+/// variable's name (clap names the flag, which the command line may not
+/// have); one from the flag keeps the flag's name. Both exit 2 at once.
+#[test]
+fn a_bad_value_names_where_it_came_from() {
+    type Case<'a> = (&'a [&'a str], &'a [(&'a str, &'a str)], &'a str);
+    let cases: [Case; 5] = [
+        (
+            &[],
+            &[("ILQR_RUNTIME_THREADS", "0")],
+            "invalid value '0' for 'ILQR_RUNTIME_THREADS': number would be zero",
+        ),
+        (
+            &["serve"],
+            &[("ILQR_WORKERS", "abc")],
+            "invalid value 'abc' for 'ILQR_WORKERS': invalid digit found in string",
+        ),
+        (
+            &["serve"],
+            &[("ILQR_LOG_FORMAT", "xml")],
+            "invalid value 'xml' for 'ILQR_LOG_FORMAT'",
+        ),
+        (
+            &["serve", "--workers", "0"],
+            &[("ILQR_WORKERS", "2")],
+            "invalid value '0' for '--workers <WORKERS>'",
+        ),
+        (
+            &["serve", "--gzip-level=12"],
+            &[],
+            "invalid value '12' for '--gzip-level <GZIP_LEVEL>'",
+        ),
+    ];
+    for (args, env, expected) in cases {
+        let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .args(args)
+            .envs(env.iter().copied())
+            // Accepted by mistake, the value would still not start a
+            // server: this limit fails the config check (exit 2, another
+            // message).
+            .env("ILQR_MAX_BODY_BYTES", "1")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?} {env:?}: {stderr}");
+        assert!(stderr.contains(expected), "{args:?} {env:?}: {stderr}");
+    }
+}
+
 /// Kills the server child when the test ends, whether it passes or not.
 struct Child(std::process::Child);
 
