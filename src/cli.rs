@@ -58,12 +58,10 @@ enum Command {
 /// failure, 2 on invalid input and 130 or 143 for a `solve` stopped by
 /// SIGINT or SIGTERM.
 pub fn main() -> ExitCode {
-    // No subcommand means `serve`, with its flags from the environment.
-    let command = parse_or_exit(std::env::args_os().collect())
-        .command
-        .or_else(|| parse_or_exit(vec!["ilqr-service".into(), "serve".into()]).command);
-    match command {
-        None => serve(Config::default()),
+    match parse_or_exit(std::env::args_os().collect()).command {
+        // No subcommand means `serve`, with its settings from the
+        // environment (so no flag can be on the command line).
+        None => serve(Config::from_env().unwrap_or_else(|e| name_env_source(e, []).exit())),
         Some(Command::Serve(config)) => serve(config),
         Some(Command::Solve { problem, output }) => solve_file(problem, output),
         Some(Command::Openapi) => {

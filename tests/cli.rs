@@ -144,7 +144,15 @@ fn a_bad_value_names_where_it_came_from() {
         ),
     ];
     for (args, env, expected) in cases {
-        let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+        // Only the variables of the case: an inherited bad one would
+        // answer first.
+        for (name, _) in std::env::vars_os() {
+            if name.to_string_lossy().starts_with("ILQR_") {
+                cmd.env_remove(name);
+            }
+        }
+        let out = cmd
             .args(args)
             .envs(env.iter().copied())
             // Accepted by mistake, the value would still not start a

@@ -140,17 +140,30 @@ pub enum LogFormat {
     Json,
 }
 
+/// # Panics
+///
+/// If an `ILQR_*` variable holds a value its flag rejects. The binary reads
+/// the environment through [`Config::from_env`] instead, and reports such a
+/// value.
 impl Default for Config {
     fn default() -> Self {
-        <Self as clap::FromArgMatches>::from_arg_matches(
-            &<Self as clap::Args>::augment_args(clap::Command::new("serve"))
-                .get_matches_from(["serve"]),
-        )
-        .expect("defaults parse")
+        Self::from_env().expect("the ILQR_* environment variables hold valid values")
     }
 }
 
 impl Config {
+    /// What `serve` gets with no flags: each setting from its environment
+    /// variable, else its default.
+    ///
+    /// # Errors
+    ///
+    /// Clap's error for a variable whose value its flag rejects.
+    pub fn from_env() -> Result<Self, clap::Error> {
+        let matches = <Self as clap::Args>::augment_args(clap::Command::new("serve"))
+            .try_get_matches_from(["serve"])?;
+        <Self as clap::FromArgMatches>::from_arg_matches(&matches)
+    }
+
     /// Problem limits this configuration imposes.
     pub fn limits(&self) -> Limits {
         Limits {
