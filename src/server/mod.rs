@@ -159,8 +159,10 @@ impl Config {
     ///
     /// Clap's error for a variable whose value its flag rejects.
     pub fn from_env() -> Result<Self, clap::Error> {
-        let matches = <Self as clap::Args>::augment_args(clap::Command::new("serve"))
-            .try_get_matches_from(["serve"])?;
+        let matches = <Self as clap::Args>::augment_args(
+            clap::Command::new("serve").bin_name("ilqr-service serve"),
+        )
+        .try_get_matches_from(["serve"])?;
         <Self as clap::FromArgMatches>::from_arg_matches(&matches)
     }
 
