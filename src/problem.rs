@@ -12,6 +12,7 @@
 //! [`ProblemSpec::validate`] checks every value before anything is solved and
 //! reports *all* problems at once, each with the JSON pointer of its field.
 
+use std::borrow::Cow;
 use std::fmt;
 use std::time::Duration;
 
@@ -582,13 +583,24 @@ const ITERATIONS_EXPECTED: &str = "an integer from 0 to 10000";
 const MILLIS_EXPECTED: &str =
     "a positive integer (ms; a service takes at most 60000 unless configured), or null";
 
-/// What the count field at `pointer` takes, if it is one: a number too
-/// large for f64 there gets the field's own expectation, not the float one.
-fn count_expected(pointer: &str) -> Option<&'static str> {
-    match pointer {
-        "/horizon" => Some(HORIZON_EXPECTED),
-        "/solver/max_iterations" => Some(ITERATIONS_EXPECTED),
-        "/solver/time_limit_ms" => Some(MILLIS_EXPECTED),
+/// What the count field at `pointer` takes, if it is one. Without
+/// `limits`, in general: what a type error says while reading, before the
+/// limits are known (and a number too large for f64 there gets the field's
+/// own expectation, not the float one). With them, the configured range,
+/// as the range check says it.
+fn count_expected(pointer: &str, limits: Option<&Limits>) -> Option<Cow<'static, str>> {
+    match (pointer, limits) {
+        ("/horizon", None) => Some(HORIZON_EXPECTED.into()),
+        ("/horizon", Some(l)) => Some(format!("an integer from 1 to {}", l.max_horizon).into()),
+        ("/solver/max_iterations", _) => Some(ITERATIONS_EXPECTED.into()),
+        (
+            "/solver/time_limit_ms",
+            Some(Limits {
+                max_time_limit_ms: Some(max),
+                ..
+            }),
+        ) => Some(format!("an integer from 1 to {max} (ms), or null").into()),
+        ("/solver/time_limit_ms", _) => Some(MILLIS_EXPECTED.into()),
         _ => None,
     }
 }
@@ -810,21 +822,12 @@ impl Shapes {
         // A count's type error was written without the limits; say the
         // configured ones, as the range check would.
         for e in &mut checker.found.errors {
-            let (generic, actual) = match e.pointer.as_str() {
-                "/horizon" => (
-                    HORIZON_EXPECTED,
-                    format!("an integer from 1 to {}", limits.max_horizon),
-                ),
-                "/solver/time_limit_ms" => match limits.max_time_limit_ms {
-                    Some(max) => (
-                        MILLIS_EXPECTED,
-                        format!("an integer from 1 to {max} (ms), or null"),
-                    ),
-                    None => continue,
-                },
-                _ => continue,
-            };
-            e.detail = e.detail.replace(generic, &actual);
+            if let (Some(generic), Some(configured)) = (
+                count_expected(&e.pointer, None),
+                count_expected(&e.pointer, Some(limits)),
+            ) {
+                e.detail = e.detail.replace(&*generic, &configured);
+            }
         }
         if let Some(rest) = rest {
             rest.check(limits, &mut checker);
@@ -1026,7 +1029,7 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         }));
     }
     let (pointer, detail) = if message.starts_with("number out of range") {
-        let detail = match count_expected(path) {
+        let detail = match count_expected(path, None) {
             Some(expected) => format!("number out of range: expected {expected}"),
             None => "number out of range: JSON numbers here must fit a 64-bit float \
                      (magnitude below 1.8e308)"
