@@ -128,7 +128,8 @@ struct Local {
     lambda_min: f64,
     /// The curvature of `J` itself along that eigenvalue's eigenvector `v`:
     /// `(J(u + s·v) + J(u − s·v) − 2·J(u)) / s²` at `s = 1e-3`. Its
-    /// round-off, about 4·1e-16·|J|/s², is below 1e-4 on these problems.
+    /// round-off, measured at about 8e-16·|J|/s², is below 4e-5 on these
+    /// problems, against a smallest λ_min of 4.3e-3.
     softest_curvature: f64,
 }
 
