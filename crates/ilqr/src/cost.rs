@@ -349,12 +349,15 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
     }
 
     /// The Hessian's negative curvature dropped: its projection onto the
-    /// positive semi-definite matrices, in closed form. From `MIN_DISTANCE`
-    /// out, the exact Hessian has the eigenvalue `q e^{−ρ}` along the
-    /// direction `n` away from the centre and `−q e^{−ρ}/ρ` across it, so
-    /// the projection is `q e^{−ρ} n nᵀ`. Closer in, where the exact one is
-    /// evaluated at the clamped distance, both eigenvalues are negative and
-    /// the projection is zero.
+    /// positive semi-definite matrices, in closed form. The exact Hessian
+    /// has the eigenvalue `−q e^{−ρ}/r` across the direction `n` away from
+    /// the centre, where `r = max(ρ, MIN_DISTANCE)`, and
+    /// `q e^{−ρ} ((ρ/r)²(1 + 1/r) − 1/r)` along it: `q e^{−ρ}` from
+    /// `MIN_DISTANCE` out, so the projection there is `q e^{−ρ} n nᵀ`.
+    /// Closer in, where the exact Hessian is evaluated at the clamped
+    /// distance, the radial eigenvalue turns negative below
+    /// `ρ = r/√(1 + r)` (0.9995 mm) and the projection is zero; between
+    /// that and 1 mm it is the radial eigenvalue's part, small and positive.
     fn expand_convex(
         &self,
         _k: usize,
@@ -365,8 +368,14 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
         let (value, grad, _) = self.position_model(x);
         let delta = self.offset(x);
         let rho = delta.norm();
-        let hess = if rho >= Self::MIN_DISTANCE {
-            delta * delta.transpose() * (value / (rho * rho))
+        let radial = if rho >= Self::MIN_DISTANCE {
+            value
+        } else {
+            let r = Self::MIN_DISTANCE;
+            value * ((rho * rho) / (r * r) * (1.0 + 1.0 / r) - 1.0 / r)
+        };
+        let hess = if radial > 0.0 {
+            delta * delta.transpose() * (radial / (rho * rho))
         } else {
             Matrix2::zeros()
         };
