@@ -543,15 +543,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     Err(Unfinished::NotPositiveDefinite) => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
-                            if !options.convex_fallback || convexified_after.is_some() {
-                                break 'outer Status::NoProgress;
+                            if let Some(status) =
+                                fall_back(options, &mut convexified_after, iterations)
+                            {
+                                break 'outer status;
                             }
-                            // Again from the same iterate, with the convex
-                            // expansion. A convergence the exact model's
-                            // last step claimed is not carried over: the
-                            // convex model must find it for itself, after a
-                            // step of its own.
-                            convexified_after = Some(iterations);
+                            // A convergence the exact model's last step
+                            // claimed is not carried over: the convex model
+                            // must find it for itself, after a step of its
+                            // own.
                             (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
                             continue 'outer;
                         }
@@ -703,10 +703,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             row.elapsed = start.elapsed();
             self.trace.push(row);
             if mu > options.mu_max {
-                if !options.convex_fallback || convexified_after.is_some() {
-                    break Status::NoProgress;
+                if let Some(status) = fall_back(options, &mut convexified_after, iterations) {
+                    break status;
                 }
-                convexified_after = Some(iterations);
                 (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
             }
         };
@@ -1033,6 +1032,23 @@ where
 
 fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
     m.iter().all(|v| v.is_finite())
+}
+
+/// μ has passed μ_max. The first time, and with
+/// [`Options::convex_fallback`], the solve goes on from the same iterate
+/// with the convex expansion: the switch is recorded in `convexified_after`
+/// and `None` returned, and the caller restarts μ. Otherwise nothing is left
+/// to try, and the solve ends with [`Status::NoProgress`].
+fn fall_back(
+    options: &Options,
+    convexified_after: &mut Option<usize>,
+    iterations: usize,
+) -> Option<Status> {
+    if !options.convex_fallback || convexified_after.is_some() {
+        return Some(Status::NoProgress);
+    }
+    *convexified_after = Some(iterations);
+    None
 }
 
 /// Tassa's schedule: grow the multiplier Δ, then μ ← max(μ_min, μ·Δ).
