@@ -31,7 +31,8 @@ enum Command {
     /// `cancelled`, exit code 130, or 143 for SIGTERM); a second Ctrl-C
     /// before the solve has stopped quits at once, writing nothing. Exit
     /// codes: 0 solved (whatever the status), 1 a runtime failure (an
-    /// unwritable output), 2 an invalid problem, 130 or 143 interrupted.
+    /// unreadable problem file, an unwritable output), 2 an invalid
+    /// problem, 130 or 143 interrupted.
     Solve {
         /// Problem JSON; `-` reads standard input. Omitted: the seed problem.
         problem: Option<PathBuf>,
@@ -170,7 +171,13 @@ fn serve(config: Config) -> ExitCode {
 fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
     let spec = match read_problem(problem.as_ref()) {
         Ok(spec) => spec,
-        Err(lines) => {
+        // Not a problem at all: exit 1, so that a script can tell a wrong
+        // path from a wrong problem.
+        Err(ReadError::Io(line)) => {
+            eprintln!("error: {line}");
+            return ExitCode::FAILURE;
+        }
+        Err(ReadError::Invalid(lines)) => {
             for l in lines {
                 eprintln!("error: {l}");
             }
@@ -379,27 +386,37 @@ fn stdout_metadata() -> Option<std::fs::Metadata> {
     std::fs::File::from(fd).metadata().ok()
 }
 
-fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, Vec<String>> {
+/// Why `solve` has no problem to solve.
+enum ReadError {
+    /// The file or standard input could not be read (exit code 1).
+    Io(String),
+    /// It was read, and is not a valid problem: one line per invalid value
+    /// (exit code 2).
+    Invalid(Vec<String>),
+}
+
+fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, ReadError> {
     let bytes = match path {
         None => return Ok(ProblemSpec::default()),
         Some(p) if p.as_os_str() == "-" => {
             let mut buf = Vec::new();
             std::io::stdin()
                 .read_to_end(&mut buf)
-                .map_err(|e| vec![format!("cannot read standard input: {e}")])?;
+                .map_err(|e| ReadError::Io(format!("cannot read standard input: {e}")))?;
             buf
         }
-        Some(p) => {
-            std::fs::read(p).map_err(|e| vec![format!("cannot read {}: {e}", p.display())])?
-        }
+        Some(p) => std::fs::read(p)
+            .map_err(|e| ReadError::Io(format!("cannot read {}: {e}", p.display())))?,
     };
     let limits = Limits::default();
-    let spec = parse(&bytes).map_err(|e| match e {
-        ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
-        ParseError::Shape(shapes) => error_lines(&shapes.with_range_errors(&limits)),
+    let spec = parse(&bytes).map_err(|e| {
+        ReadError::Invalid(match e {
+            ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
+            ParseError::Shape(shapes) => error_lines(&shapes.with_range_errors(&limits)),
+        })
     })?;
     spec.validate(&limits)
-        .map_err(|invalid| error_lines(&invalid))?;
+        .map_err(|invalid| ReadError::Invalid(error_lines(&invalid)))?;
     Ok(spec)
 }
 

@@ -279,6 +279,19 @@ fn the_cli_output_file_is_written_only_with_a_result() {
             .starts_with("error: cannot write /nonexistent-dir/r.json: "),
     );
 
+    // A problem that cannot be read (missing, a directory) is not an
+    // invalid problem: exit 1, not 2, so that a script can tell them apart.
+    for input in [dir.join("missing.json"), dir.clone()] {
+        let unreadable = solve_to(Some(&input), &dir.join("never.json"));
+        let stderr = String::from_utf8(unreadable.stderr).unwrap();
+        assert_eq!(unreadable.status.code(), Some(1), "{input:?}: {stderr}");
+        assert!(
+            stderr.starts_with(&format!("error: cannot read {}: ", input.display())),
+            "{stderr}"
+        );
+        assert!(!dir.join("never.json").exists());
+    }
+
     // Invalid problem: an existing output keeps its content, a new one is
     // not created.
     let existing = dir.join("existing.json");
