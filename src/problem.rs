@@ -389,9 +389,11 @@ impl ProblemSpec {
             );
         }
         if let Some(us) = &self.initial_controls {
-            // Unless `horizon` was taken out as a wrong shape: then
-            // `self.horizon` is the default, not what was sent.
-            if us.len() != self.horizon && !v.skips("/horizon") {
+            // Only against a valid horizon: one taken out as a wrong shape
+            // reads as the default, not what was sent, and matching one
+            // out of range (0, 20000) would not make the problem valid.
+            let horizon_valid = (1..=limits.max_horizon).contains(&self.horizon);
+            if us.len() != self.horizon && horizon_valid && !v.skips("/horizon") {
                 v.push(
                     "/initial_controls",
                     format!(

@@ -299,6 +299,14 @@ fn initial_controls_must_match_the_horizon() {
         "/initial_controls/1",
     );
     assert!(errors(&json!({"horizon": 2, "initial_controls": [[1, 1], [2, 2]]})).is_empty());
+    // Against a horizon out of range only the horizon is wrong: "expected 0
+    // rows" or "20000 rows" would be advice that cannot make it valid.
+    for horizon in [0, 20000] {
+        assert_eq!(
+            errors(&json!({"horizon": horizon, "initial_controls": [[1, 1]]})),
+            ["/horizon"]
+        );
+    }
 }
 
 #[test]
