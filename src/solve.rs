@@ -293,7 +293,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
                 step_size: r.step_size,
                 regularization: r.regularization,
                 feedforward_norm: r.feedforward_norm,
-                elapsed_ms: r.elapsed.as_secs_f64() * 1e3,
+                elapsed_ms: millis(r.elapsed),
             })
             .collect()
     });
@@ -309,9 +309,17 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         gains,
         trace,
         convexified_after_iteration: summary.convexified_after,
-        solve_time_ms: summary.solve_time.as_secs_f64() * 1e3,
+        solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })
+}
+
+/// A duration in milliseconds, as the nearest double to its whole
+/// nanoseconds / 10⁶, so that JSON writes `43.6889`, not the
+/// `43.688900000000004` of `as_secs_f64() * 1e3` (two roundings).
+pub fn millis(d: Duration) -> f64 {
+    // Exact below 2⁵³ ns (104 days), and one correctly rounded division.
+    d.as_nanos() as f64 / 1e6
 }
 
 /// Longest horizon whose solver workspace a thread keeps for its next solve
@@ -393,5 +401,32 @@ fn field_error(e: SolveError, spec: &ProblemSpec) -> FieldError {
     FieldError {
         pointer: pointer.to_owned(),
         detail: e.to_string(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whole nanoseconds print as at most six decimals of a millisecond,
+    /// never with the tail of a second rounding.
+    #[test]
+    fn millis_prints_what_was_measured() {
+        for (nanos, json) in [
+            (43_688_900, "43.6889"),
+            (33_626, "0.033626"),
+            (1, "1e-6"),
+            (0, "0.0"),
+            (86_400_000_000_000, "86400000.0"),
+        ] {
+            let ms = serde_json::to_string(&millis(Duration::from_nanos(nanos))).unwrap();
+            assert_eq!(ms, json);
+        }
+        // The old expression, for contrast: the test's first case is one
+        // it got wrong.
+        assert_ne!(
+            (Duration::from_nanos(43_688_900).as_secs_f64() * 1e3).to_string(),
+            "43.6889"
+        );
     }
 }

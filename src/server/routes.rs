@@ -214,7 +214,7 @@ struct AccessLog;
 impl<B> OnResponse<B> for AccessLog {
     fn on_response(self, res: &axum::http::Response<B>, latency: Duration, _: &tracing::Span) {
         let status = res.status().as_u16();
-        let latency_ms = latency.as_secs_f64() * 1e3;
+        let latency_ms = crate::solve::millis(latency);
         if res.status().is_client_error() {
             tracing::info!(status, latency_ms, "response");
         } else {
@@ -350,7 +350,7 @@ async fn solve(
             // Recorded here, not in the handler, so solves whose client left
             // are counted too.
             if let Ok(r) = &mut out {
-                r.queue_time_ms = waited.as_secs_f64() * 1e3;
+                r.queue_time_ms = crate::solve::millis(waited);
                 ::metrics::counter!("solves_total", "status" => r.status.as_str()).increment(1);
                 ::metrics::histogram!("solve_duration_seconds").record(r.solve_time_ms / 1e3);
                 ::metrics::histogram!("solve_iterations").record(r.iterations as f64);
