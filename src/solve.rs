@@ -91,9 +91,12 @@ pub struct SolveResult {
     #[schema(schema_with = schema::controls)]
     pub controls: Vec<[f64; 2]>,
     /// The time-varying feedback policy. Absent when `output.gains` is
-    /// false, and when no backward pass completed: a solve that ended
-    /// (`time_limit` or `cancelled`, 0 iterations) before its first
-    /// backward pass completed has no policy to give.
+    /// false, and when no backward pass completed, so that there is no
+    /// policy to give: a solve that ended (`time_limit` or `cancelled`, 0
+    /// iterations) before its first backward pass completed, or one whose
+    /// first pass failed at every regularisation, with the exact and then
+    /// the convex model (`no_progress`, 0 iterations; only where the
+    /// derivatives overflow, at extreme parameters).
     // Left out when None, never `null`: the schema must not offer null.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
@@ -139,9 +142,10 @@ pub struct Gains {
     pub regularization: f64,
     /// False: the gains were computed about the returned `states` and
     /// `controls`. True when the solve stopped (`time_limit` or
-    /// `cancelled`) after an accepted step but before the backward pass
-    /// about the new iterate completed (while linearising about it, during
-    /// the pass, or while raising the regularisation): the gains are then
+    /// `cancelled`; `no_progress` only where the derivatives overflow) after
+    /// an accepted step but before the backward pass about the new iterate
+    /// completed (while linearising about it, during the pass, or while
+    /// raising the regularisation): the gains are then
     /// the previous iterate's, one accepted step away: a fallback. At the
     /// last knot `K` was 0–12% off with one to six obstacles and 2–60% off
     /// with 100 (the cases measured), and `feedforward` 7.8% to over

@@ -439,9 +439,10 @@ class Gains:
             report it.
         about_previous_iterate: ``False`` when the gains are about the
             returned trajectory. ``True`` when the solve stopped
-            (``time_limit``, ``cancelled``, ``no_progress``) after an
-            accepted step, before the backward pass about the new iterate
-            completed (often, when a tight budget stops a long horizon):
+            (``time_limit``, ``cancelled``; ``no_progress`` only where
+            the derivatives overflow) after an accepted step, before the
+            backward pass about the new iterate completed (often, when a
+            tight budget stops a long horizon):
             the gains are then the previous iterate's, one step away: a
             fallback (``K`` 0–60% off in the cases measured,
             ``feedforward`` not the next step). ``None`` from a
