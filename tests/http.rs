@@ -729,6 +729,10 @@ async fn the_served_spec_states_this_servers_limits() {
     let ms = &mut schemas["SolverSpec"]["properties"]["time_limit_ms"];
     ms["maximum"] = json!(2000);
     ms["default"] = json!(1500);
+    // Wherever the spec repeats the default.
+    let problem = &mut schemas["ProblemSpec"];
+    problem["properties"]["solver"]["default"]["time_limit_ms"] = json!(1500);
+    problem["example"]["solver"]["time_limit_ms"] = json!(1500);
     assert_eq!(served, expected);
 }
 

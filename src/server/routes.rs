@@ -139,6 +139,17 @@ fn with_limits(
             ms.insert("maximum".into(), max_ms.into());
             ms.insert("default".into(), default_ms.into());
         }
+        // The same default where the problem's schema repeats it: the
+        // `solver` member's default and the example (the code's say null,
+        // "the service's default"; this service's is known).
+        for pointer in [
+            "/components/schemas/ProblemSpec/properties/solver/default/time_limit_ms",
+            "/components/schemas/ProblemSpec/example/solver/time_limit_ms",
+        ] {
+            if let Some(ms) = doc.pointer_mut(pointer) {
+                *ms = default_ms.into();
+            }
+        }
         serde_json::from_value(doc).unwrap_or(spec)
     }
 }
