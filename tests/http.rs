@@ -412,13 +412,22 @@ async fn every_error_class_is_a_problem_document() {
     )
     .await;
     // Parameters and +json suffixes are JSON too.
-    assert_eq!(
-        raw("{}", Some("application/json; charset=utf-8"))
+    for ok in [
+        "application/json; charset=utf-8",
+        "Application/JSON;CHARSET=\"UTF-8\"",
+        "application/vnd.ilqr+json",
+    ] {
+        assert_eq!(raw("{}", Some(ok)).await.unwrap().status(), 200, "{ok}");
+    }
+    // The body is read as UTF-8, so another charset would be misread.
+    let p = problem_of(
+        raw("{}", Some("application/json; charset=latin1"))
             .await
-            .unwrap()
-            .status(),
-        200
-    );
+            .unwrap(),
+        StatusCode::UNSUPPORTED_MEDIA_TYPE,
+    )
+    .await;
+    assert!(p["detail"].as_str().unwrap().contains("UTF-8 JSON"), "{p}");
 
     let big = json!({"initial_controls": vec![[4.905, 4.905]; 1000], "horizon": 1000});
     let p = problem_of(s.post(&big).await, StatusCode::PAYLOAD_TOO_LARGE).await;

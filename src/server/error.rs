@@ -176,7 +176,7 @@ impl ApiError {
                 (detail, invalid.errors.clone(), None)
             }
             Self::UnsupportedMediaType => (
-                "send the problem as uncompressed JSON with `Content-Type: application/json`"
+                "send the problem as uncompressed UTF-8 JSON with `Content-Type: application/json`"
                     .into(),
                 vec![],
                 None,
