@@ -965,7 +965,36 @@ fn shape_error(e: serde_path_to_error::Error<serde_json::Error>) -> FieldError {
         pointer = format!("{pointer}/{}", escape_token(field));
         detail = "this field is required".into();
     }
+    // serde quotes the offending key or string whole: a 1 MB key would
+    // make a 1 MB message, written again in the answer's `detail`.
+    let detail = elide(detail);
     FieldError { pointer, detail }
+}
+
+/// Longest message kept whole; see [`elide`].
+const MAX_DETAIL_CHARS: usize = 400;
+
+/// `text` if it has at most [`MAX_DETAIL_CHARS`] characters, else its head
+/// and tail around a note of how much was left out. The tail is kept longer
+/// because serde ends its messages with what was expected ("..., expected
+/// one of `model`, `dt`, ...") after the quoted input.
+pub fn elide(text: String) -> String {
+    let chars = text.chars().count();
+    if chars <= MAX_DETAIL_CHARS {
+        return text;
+    }
+    let (head, tail) = (100, 250);
+    let cut = chars - head - tail;
+    let start = text.char_indices().nth(head).map_or(0, |(i, _)| i);
+    let end = text
+        .char_indices()
+        .nth(head + cut)
+        .map_or(text.len(), |(i, _)| i);
+    format!(
+        "{} [... {cut} characters left out ...] {}",
+        &text[..start],
+        &text[end..]
+    )
 }
 
 /// Take out of `value` the nearest object member at or above `pointer`

@@ -1097,3 +1097,39 @@ async fn requests_the_http_layer_rejects_get_the_documented_status() {
     let info = spec["info"]["description"].as_str().unwrap();
     assert!(info.contains("more than 100 header fields"), "{info}");
 }
+
+/// An error answer echoes a huge key or string once (the exact pointer in
+/// `errors`), not four times: the messages quote at most a few hundred
+/// characters of it.
+#[tokio::test]
+async fn a_huge_key_or_string_is_not_echoed_many_times() {
+    let s = Server::default().await;
+    let huge = "k".repeat(1_000_000);
+    for (body, pointer) in [
+        (json!({ &huge: 1 }), format!("/{huge}")),
+        (json!({"dt": &huge}), "/dt".to_owned()),
+    ] {
+        let p = problem_of(s.post(&body).await, StatusCode::UNPROCESSABLE_ENTITY).await;
+        let answer = p.to_string().len();
+        assert!(answer < pointer.len() + 2_000, "{answer} bytes");
+        assert_eq!(p["errors"][0]["pointer"], *pointer);
+        for text in [&p["detail"], &p["errors"][0]["detail"]] {
+            let text = text.as_str().unwrap();
+            assert!(text.len() < 1_000, "{} bytes", text.len());
+            assert!(text.contains("characters left out"), "{text}");
+        }
+    }
+    // What serde puts after the quoted input, what was expected, is kept.
+    let p = problem_of(
+        s.post(&json!({ &huge: 1 })).await,
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert!(
+        p["errors"][0]["detail"]
+            .as_str()
+            .unwrap()
+            .ends_with("expected one of `model`, `integrator`, `dt`, `horizon`, `initial_state`, `goal_state`, `weights`, `obstacles`, `initial_controls`, `solver`, `output`"),
+        "{p}"
+    );
+}

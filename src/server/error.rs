@@ -161,7 +161,14 @@ impl ApiError {
             }
             Self::Validation(invalid) => {
                 let mut detail = match (invalid.errors.as_slice(), invalid.unlisted) {
-                    ([one], 0) => format!("{}: {}", label(&one.pointer), one.detail),
+                    // The pointer is given whole in `errors`; here at most
+                    // a few hundred characters of it, so that a huge key is
+                    // not echoed twice.
+                    ([one], 0) => format!(
+                        "{}: {}",
+                        crate::problem::elide(label(&one.pointer).to_owned()),
+                        one.detail
+                    ),
                     (many, 0) => format!("{} invalid fields; see `errors`", many.len()),
                     (listed, unlisted) => format!(
                         "{} invalid values; `errors` lists the first {} and \
