@@ -415,6 +415,8 @@ async fn every_error_class_is_a_problem_document() {
     for ok in [
         "application/json; charset=utf-8",
         "Application/JSON;CHARSET=\"UTF-8\"",
+        "application/json; charset=utf8",
+        "application/json; charset=US-ASCII",
         "application/vnd.ilqr+json",
     ] {
         assert_eq!(raw("{}", Some(ok)).await.unwrap().status(), 200, "{ok}");

@@ -299,8 +299,13 @@ fn is_json(headers: &HeaderMap) -> bool {
     // The body is read as UTF-8, JSON's only encoding (RFC 8259 §8.1): a
     // charset that says otherwise would be misread, so it is refused.
     let utf8 = parts.all(|param| match param.split_once('=') {
+        // `utf8` is a common label of UTF-8 too (WHATWG Encoding), and
+        // ASCII is a subset of it.
         Some((name, value)) if name.trim().eq_ignore_ascii_case("charset") => {
-            value.trim().trim_matches('"').eq_ignore_ascii_case("utf-8")
+            let charset = value.trim().trim_matches('"');
+            ["utf-8", "utf8", "us-ascii"]
+                .iter()
+                .any(|c| charset.eq_ignore_ascii_case(c))
         }
         _ => true,
     });
