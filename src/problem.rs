@@ -448,6 +448,13 @@ impl ProblemSpec {
 /// ~760 000 errors, an 80 MB answer built on the async runtime.
 pub const MAX_REPORTED_ERRORS: usize = 100;
 
+/// The listed errors' pointers and messages hold at most this many bytes
+/// together, the first error apart (always listed; its pointer is at most
+/// the body's size); the rest are counted in [`Invalid::unlisted`]. A key
+/// of a megabyte is in the pointer of every error under it: with a hundred
+/// of them, a 4 MiB body made a 400 MB answer.
+pub const MAX_REPORTED_BYTES: usize = 64 * 1024;
+
 /// Why a problem was rejected: its invalid values, listed up to a cap.
 ///
 /// The count of the rest is kept apart from the list (it used to be one
@@ -459,7 +466,8 @@ pub struct Invalid {
     /// first, then wrong shapes (object keys in alphabetical order, see
     /// [`parse`]), then out-of-range values in schema order.
     pub errors: Vec<FieldError>,
-    /// How many more invalid values were found than `errors` lists.
+    /// How many more invalid values were found than `errors` lists (past
+    /// [`MAX_REPORTED_ERRORS`] of them, or [`MAX_REPORTED_BYTES`]).
     pub unlisted: usize,
     /// The document was not checked to its end: [`parse`]'s budget for
     /// reading it again after wrong shapes ran out, so values it did not
@@ -484,10 +492,14 @@ struct Checker {
     /// reported at or under them (they hold defaults now).
     skip: Vec<String>,
     /// Keys given twice, already reported: no second error at exactly
-    /// these pointers (the values under them are checked as usual). At
-    /// most [`MAX_REPORTED_ERRORS`] of them, so that looking one up stays
-    /// cheap on a hostile document; repeats past those are only counted.
+    /// these pointers (the values under them are checked as usual). Only
+    /// those listed in `found.errors`, so at most [`MAX_REPORTED_ERRORS`]
+    /// of them and [`MAX_REPORTED_BYTES`] past the first: looking one up
+    /// stays cheap on a hostile document; repeats past those are only
+    /// counted.
     repeated: Vec<String>,
+    /// Bytes of pointers and messages in `found.errors`.
+    listed_bytes: usize,
 }
 
 impl Checker {
@@ -496,11 +508,11 @@ impl Checker {
         if self.repeated.iter().any(|r| r == pointer) {
             return;
         }
-        self.push(
+        let listed = self.push(
             pointer,
             "this key appears more than once in its object; give it once".into(),
         );
-        if self.repeated.len() < MAX_REPORTED_ERRORS {
+        if listed {
             self.repeated.push(pointer.to_owned());
         }
     }
@@ -510,18 +522,30 @@ impl Checker {
         self.skip.iter().any(|r| is_at_or_under(pointer, r))
     }
 
-    fn push(&mut self, pointer: &str, detail: String) {
+    /// Record an error; whether it was listed (rather than only counted,
+    /// or dropped as one already reported or under a taken-out member).
+    fn push(&mut self, pointer: &str, detail: String) -> bool {
         if self.skips(pointer) || self.repeated.iter().any(|r| r == pointer) {
-            return;
+            return false;
         }
-        if self.found.errors.len() < MAX_REPORTED_ERRORS {
-            self.found.errors.push(FieldError {
+        let bytes = pointer.len() + detail.len();
+        let errors = &mut self.found.errors;
+        // Once one is only counted, so are the rest: `errors` stays the
+        // first ones found.
+        let listed = errors.is_empty()
+            || (self.found.unlisted == 0
+                && errors.len() < MAX_REPORTED_ERRORS
+                && self.listed_bytes + bytes <= MAX_REPORTED_BYTES);
+        if listed {
+            errors.push(FieldError {
                 pointer: pointer.to_owned(),
                 detail,
             });
+            self.listed_bytes += bytes;
         } else {
             self.found.unlisted += 1;
         }
+        listed
     }
 
     /// `lo ≤ x ≤ hi`, and finite. The pointer is a `Display` (a literal or
@@ -1234,5 +1258,33 @@ fn num(x: f64) -> String {
         format!("{x}")
     } else {
         format!("{x:e}")
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Whole up to the limit; past it, cut at character boundaries (a
+    /// multi-byte character is never split) with the count of characters
+    /// left out, keeping 100 at the start and 250 at the end.
+    #[test]
+    fn elide_keeps_head_and_tail_on_character_boundaries() {
+        for unit in ["k", "é", "😀", "a€"] {
+            for chars in [0, 399, 400, 401, 402, 1000, 100_000] {
+                let text: String = unit.chars().cycle().take(chars).collect();
+                let out = elide(text.clone());
+                if chars <= MAX_DETAIL_CHARS {
+                    assert_eq!(out, text);
+                    continue;
+                }
+                let cut = chars - 350;
+                let note = format!(" [... {cut} characters left out ...] ");
+                let (head, tail) = out.split_once(&note).unwrap();
+                assert_eq!(head.chars().count(), 100);
+                assert_eq!(tail.chars().count(), 250);
+                assert!(text.starts_with(head) && text.ends_with(tail));
+            }
+        }
     }
 }

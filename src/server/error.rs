@@ -28,8 +28,9 @@ pub struct Problem {
     pub status: u16,
     /// What went wrong in this request.
     pub detail: String,
-    /// For validation errors: every offending field, up to the first 100;
-    /// keys given twice first, then wrong types, lengths and unknown
+    /// For validation errors: every offending field, up to the first 100
+    /// (and 64 KiB of pointers and messages after the first, which counts
+    /// when a key is huge); keys given twice first, then wrong types, lengths and unknown
     /// fields, then values out of range. A wrong type inside an array
     /// element can hide other errors in the same array. When `detail` ends
     /// with "(checking stopped here: …)", the document was not checked to
