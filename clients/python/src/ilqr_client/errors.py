@@ -163,8 +163,10 @@ class ValidationError(ApiError):
     def unlisted(self) -> int:
         """How many more invalid values the service found than :attr:`errors` lists.
 
-        The service lists the first 100 and counts the rest in the problem
-        document's ``unlisted_errors``; 0 when everything is listed.
+        The service lists the first 100 (fewer when huge keys make their
+        pointers long: 64 KiB of pointers and messages after the first) and
+        counts the rest in the problem document's ``unlisted_errors``; 0 when
+        everything is listed.
         """
         raw = (self.body or {}).get("unlisted_errors")
         if isinstance(raw, int) and not isinstance(raw, bool) and raw > 0:
