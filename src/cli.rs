@@ -95,6 +95,24 @@ fn name_env_source(
 ) -> clap::Error {
     use clap::CommandFactory;
     use clap::error::{ContextKind, ContextValue, ErrorKind};
+    let args: Vec<std::ffi::OsString> = args.into_iter().collect();
+    // clap says only "invalid UTF-8 was detected in one or more arguments";
+    // when the command line is clean, the culprit is a variable, a place a
+    // user would not look.
+    if err.kind() == ErrorKind::InvalidUtf8 && args.iter().all(|a| a.to_str().is_some()) {
+        let cmd = Cli::command();
+        let bad_env = std::iter::once(&cmd)
+            .chain(cmd.get_subcommands())
+            .flat_map(clap::Command::get_arguments)
+            .filter_map(|a| a.get_env()?.to_str())
+            .find(|name| std::env::var_os(name).is_some_and(|v| v.to_str().is_none()));
+        if let Some(name) = bad_env {
+            return clap::Error::raw(
+                ErrorKind::InvalidUtf8,
+                format!("the value of {name} is not valid UTF-8\n"),
+            );
+        }
+    }
     if !matches!(
         err.kind(),
         ErrorKind::ValueValidation | ErrorKind::InvalidValue
@@ -113,7 +131,7 @@ fn name_env_source(
         return err;
     };
     let flag = format!("--{long}");
-    let on_command_line = args.into_iter().any(|a| {
+    let on_command_line = args.iter().any(|a| {
         a.to_str()
             .is_some_and(|a| a == flag || a.starts_with(&format!("{flag}=")))
     });

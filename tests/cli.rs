@@ -167,6 +167,52 @@ fn a_bad_value_names_where_it_came_from() {
     }
 }
 
+/// A variable that is not UTF-8 is named too (clap says only "invalid
+/// UTF-8 was detected in one or more arguments"); a non-UTF-8 command-line
+/// argument keeps clap's message, the caller's own line being the place to
+/// look.
+#[test]
+fn a_variable_that_is_not_utf8_is_named() {
+    use std::os::unix::ffi::OsStrExt;
+    let bad = std::ffi::OsStr::from_bytes(b"\xff");
+    for (args, expected) in [
+        (
+            &[][..],
+            "error: the value of ILQR_WORKERS is not valid UTF-8",
+        ),
+        (
+            &["serve"][..],
+            "error: the value of ILQR_WORKERS is not valid UTF-8",
+        ),
+    ] {
+        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+        for (name, _) in std::env::vars_os() {
+            if name.to_string_lossy().starts_with("ILQR_") {
+                cmd.env_remove(name);
+            }
+        }
+        let out = cmd
+            .args(args)
+            .env("ILQR_WORKERS", bad)
+            .env("ILQR_MAX_BODY_BYTES", "1")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
+        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+    }
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .arg("serve")
+        .arg("--workers")
+        .arg(bad)
+        .env("ILQR_WORKERS", bad)
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(stderr.contains("invalid UTF-8 was detected"), "{stderr}");
+}
+
 /// Kills the server child when the test ends, whether it passes or not.
 struct Child(std::process::Child);
 
