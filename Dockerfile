@@ -70,7 +70,9 @@ COPY --from=builder /app/target/release/ilqr-service /usr/local/bin/ilqr-service
 # through the published port). RUST_LOG feeds tracing-subscriber's EnvFilter.
 # `docker stop` (and compose) send SIGKILL 10 s after SIGTERM by default. The
 # binary's default drain is 10 s, so solves it cancels at the end would never
-# be answered; 7 s leaves time for that. To drain longer, raise both:
+# be answered; 7 s leaves time for that. (After the drain, connections get up
+# to 5 s more to finish writing their answers; only a client too slow to
+# read its answer in 3 s is cut off by the SIGKILL.) To drain longer, raise both:
 # `docker run --stop-timeout 40 -e ILQR_SHUTDOWN_GRACE_SECS=30` (compose:
 # `stop_grace_period`). Kubernetes gives 30 s and sets its own value.
 ENV ILQR_BIND=0.0.0.0:8080 \
