@@ -46,10 +46,11 @@ enum Command {
     /// (for container health checks, which have no curl).
     Healthcheck {
         /// Address of the service, HOST:PORT (`127.0.0.1:8080`,
-        /// `localhost:8080`). Default: `ILQR_BIND`, so it follows the
-        /// server's setting; an all-interfaces bind (`0.0.0.0`, `[::]`) is
-        /// checked on loopback (`127.0.0.1`, `[::1]`) at its port, and an
-        /// unset one at `127.0.0.1:8080`.
+        /// `localhost:8080`; every address a name resolves to is tried).
+        /// Default: `ILQR_BIND`, so it follows the server's setting; an
+        /// all-interfaces bind is checked on loopback at its port
+        /// (`0.0.0.0` on `127.0.0.1`, `[::]` on `[::1]` then `127.0.0.1`),
+        /// and an unset one at `127.0.0.1:8080`.
         #[arg(long, env = "ILQR_HEALTHCHECK_ADDR")]
         addr: Option<String>,
     },
@@ -70,7 +71,11 @@ pub fn main() -> ExitCode {
             ExitCode::SUCCESS
         }
         Some(Command::Healthcheck { addr }) => {
-            match server::healthcheck(&addr.unwrap_or_else(local_addr)) {
+            let checked = match addr {
+                Some(addr) => server::healthcheck(&addr),
+                None => server::healthcheck_any(&local_addrs()),
+            };
+            match checked {
                 Ok(()) => ExitCode::SUCCESS,
                 Err(e) => {
                     eprintln!("unhealthy: {e}");
@@ -154,22 +159,24 @@ fn name_env_source(
 
 /// Where a service started with the same environment listens: `ILQR_BIND`
 /// itself when it names one address (`[::1]:9000`, `10.0.0.5:8080`), or
-/// the loopback address of its family at its port when it binds every
-/// interface (`0.0.0.0:8080` → `127.0.0.1:8080`, `[::]:8080` →
-/// `[::1]:8080`); `127.0.0.1:8080` when unset or unparsable.
-fn local_addr() -> String {
+/// loopback at its port when it binds every interface (`0.0.0.0:8080` →
+/// `127.0.0.1:8080`; `[::]:8080` → `[::1]:8080`, then `127.0.0.1:8080`,
+/// since `[::]` takes IPv4 too and a container may have no IPv6
+/// loopback); `127.0.0.1:8080` when unset or unparsable.
+fn local_addrs() -> Vec<std::net::SocketAddr> {
     use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
-    let mut addr = std::env::var("ILQR_BIND")
+    let addr = std::env::var("ILQR_BIND")
         .ok()
         .and_then(|b| b.parse::<SocketAddr>().ok())
         .unwrap_or_else(|| SocketAddr::from((Ipv4Addr::LOCALHOST, 8080)));
-    if addr.ip().is_unspecified() {
-        addr.set_ip(match addr.ip() {
-            IpAddr::V4(_) => IpAddr::V4(Ipv4Addr::LOCALHOST),
-            IpAddr::V6(_) => IpAddr::V6(Ipv6Addr::LOCALHOST),
-        });
+    let v4 = SocketAddr::from((Ipv4Addr::LOCALHOST, addr.port()));
+    match addr.ip() {
+        IpAddr::V4(ip) if ip.is_unspecified() => vec![v4],
+        IpAddr::V6(ip) if ip.is_unspecified() => {
+            vec![SocketAddr::from((Ipv6Addr::LOCALHOST, addr.port())), v4]
+        }
+        _ => vec![addr],
     }
-    addr.to_string()
 }
 
 fn serve(config: Config) -> ExitCode {

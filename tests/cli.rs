@@ -293,6 +293,18 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     let port = bind.rsplit(':').next().unwrap();
     let any = format!("0.0.0.0:{port}");
     assert_eq!(check(&[("ILQR_BIND", &any)]).0, Some(0));
+    // `[::]` takes IPv4 too: checked on [::1], then on 127.0.0.1, where
+    // this (IPv4) service answers.
+    let any6 = format!("[::]:{port}");
+    assert_eq!(check(&[("ILQR_BIND", &any6)]).0, Some(0));
+    // Every address a name resolves to is tried, in order: one that
+    // refuses first (as `::1` does for `localhost` on many machines) does
+    // not fail the check.
+    let v4: std::net::SocketAddr = bind.parse().unwrap();
+    let refusing: std::net::SocketAddr = format!("127.0.0.1:{}", free_port()).parse().unwrap();
+    ilqr_service::server::healthcheck_any(&[refusing, v4]).unwrap();
+    let err = ilqr_service::server::healthcheck_any(&[refusing]).unwrap_err();
+    assert!(err.starts_with(&format!("{refusing}: ")), "{err}");
     assert_eq!(check(&[("ILQR_HEALTHCHECK_ADDR", &bind)]).0, Some(0));
     let named = format!("localhost:{port}");
     assert_eq!(check(&[("ILQR_HEALTHCHECK_ADDR", &named)]).0, Some(0));

@@ -508,17 +508,44 @@ fn init_logging(format: LogFormat) {
 }
 
 /// `GET /healthz` over a plain TCP socket, for container health checks.
+/// `addr` is `HOST:PORT` (`127.0.0.1:8080`, `localhost:8080`); every
+/// address the host resolves to is tried in turn (`localhost` is often
+/// `::1` first, where an IPv4-only service refuses).
 pub fn healthcheck(addr: &str) -> Result<(), String> {
-    let timeout = Duration::from_secs(2);
-    // `127.0.0.1:8080` or `localhost:8080`; the first address it resolves to.
     use std::net::ToSocketAddrs;
-    let sock: SocketAddr = addr
+    let addrs: Vec<SocketAddr> = addr
         .to_socket_addrs()
         .map_err(|e| format!("bad address {addr} (expected HOST:PORT): {e}"))?
-        .next()
-        .ok_or_else(|| format!("{addr} resolves to no address"))?;
+        .collect();
+    if addrs.is_empty() {
+        return Err(format!("{addr} resolves to no address"));
+    }
+    healthcheck_any(&addrs)
+}
+
+/// [`healthcheck`] on each of `addrs` in turn until one answers 200, all
+/// within 2 s (a container's check is killed after its own timeout, 3 s in
+/// ours). The error lists each address's failure.
+pub fn healthcheck_any(addrs: &[SocketAddr]) -> Result<(), String> {
+    let deadline = std::time::Instant::now() + Duration::from_secs(2);
+    let mut failures = Vec::new();
+    for addr in addrs {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        if left.is_zero() {
+            failures.push(format!("{addr}: not tried, the 2 s were spent"));
+            continue;
+        }
+        match healthz(addr, left) {
+            Ok(()) => return Ok(()),
+            Err(e) => failures.push(format!("{addr}: {e}")),
+        }
+    }
+    Err(failures.join("; "))
+}
+
+fn healthz(addr: &SocketAddr, timeout: Duration) -> Result<(), String> {
     let mut stream =
-        std::net::TcpStream::connect_timeout(&sock, timeout).map_err(|e| e.to_string())?;
+        std::net::TcpStream::connect_timeout(addr, timeout).map_err(|e| e.to_string())?;
     stream
         .set_read_timeout(Some(timeout))
         .map_err(|e| e.to_string())?;
