@@ -2,7 +2,9 @@
 # The whole test suite, as CI runs it (`.ci/run` calls this) and as the
 # README tells a newcomer to run it. Installs what it needs into ./.venv.
 #
-#   1. cargo fmt --check, cargo clippy -D warnings
+#   1. cargo fmt --check, cargo clippy -D warnings (cargo with --locked: a
+#      Cargo.lock that Cargo.toml has outgrown fails here, as it would fail
+#      the Dockerfile's --locked build, instead of being rewritten quietly)
 #   2. Rust tests (solver, validation, HTTP over loopback, OpenAPI freshness)
 #   3. Python client tests against the real release binary
 #   4. hadolint on the Dockerfile
@@ -23,13 +25,13 @@ step "cargo fmt --check"
 cargo fmt --all -- --check
 
 step "cargo clippy -D warnings"
-cargo clippy --workspace --all-targets --release -- -D warnings
+cargo clippy --locked --workspace --all-targets --release -- -D warnings
 
 step "Rust tests (release: the numbers and time budgets are the shipped ones)"
-cargo test --workspace --release
+cargo test --locked --workspace --release
 
 step "release binary"
-cargo build --release --bin ilqr-service
+cargo build --locked --release --bin ilqr-service
 # Honour CARGO_TARGET_DIR (a stale ./target must not be tested instead).
 TARGET_DIR=$(cargo metadata --format-version 1 --no-deps \
   | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
