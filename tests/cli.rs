@@ -384,3 +384,72 @@ fn text_logs_to_a_pipe_have_no_colour_escapes() {
     assert!(logs.contains("INFO"), "no log lines: {logs:?}");
     assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
 }
+
+/// SIGTERM starts a drain that waits for the solves in flight; a second
+/// SIGTERM during it ends the process at once with exit status 143 (the
+/// way out of a long drain at a terminal).
+#[test]
+fn a_second_signal_ends_the_drain_at_once() {
+    use std::io::Write;
+    use std::time::{Duration, Instant};
+    let (mut server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.arg("serve")
+            .env("ILQR_BIND", bind)
+            .env("ILQR_WORKERS", "1")
+            .env("ILQR_SHUTDOWN_GRACE_SECS", "60")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    // Three solves of about 3 s each (N = 10000, 100 obstacles; longer on
+    // a slower machine), one running and two queued: a drain of 9 s or so.
+    let obstacles: Vec<String> = (0..100)
+        .map(|i| format!(r#"{{"center":[{},{}],"weight":1}}"#, i % 10, i / 10))
+        .collect();
+    let body = format!(
+        r#"{{"horizon":10000,"dt":0.0005,"obstacles":[{}],"solver":{{"max_iterations":10000,"tolerance":0,"time_limit_ms":60000}}}}"#,
+        obstacles.join(",")
+    );
+    let clients: Vec<std::net::TcpStream> = (0..3)
+        .map(|_| {
+            let mut c = std::net::TcpStream::connect(&bind).unwrap();
+            write!(
+                c,
+                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                 Content-Length: {}\r\n\r\n{body}",
+                body.len()
+            )
+            .unwrap();
+            c
+        })
+        .collect();
+    std::thread::sleep(Duration::from_millis(300));
+    let pid = server.0.id().to_string();
+    let term = || {
+        let ok = Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success();
+        assert!(ok);
+    };
+    term();
+    std::thread::sleep(Duration::from_millis(500));
+    assert!(
+        server.0.try_wait().unwrap().is_none(),
+        "the first SIGTERM did not wait for the solves in flight"
+    );
+    let second = Instant::now();
+    term();
+    let status = loop {
+        if let Some(status) = server.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            second.elapsed() < Duration::from_secs(2),
+            "still draining 2 s after the second SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(20));
+    };
+    assert_eq!(status.code(), Some(143));
+    drop(clients);
+}

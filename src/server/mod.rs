@@ -432,10 +432,17 @@ pub async fn run(
     Ok(())
 }
 
-/// Resolves on SIGINT or SIGTERM.
+/// Resolves on SIGINT or SIGTERM, and from then on a second one ends the
+/// process at once (exit code 130 or 143), without finishing the drain: the
+/// way out of a long drain at a terminal (`docker run -it`, Ctrl-C twice).
 pub async fn shutdown_signal() {
     next_signal().await;
-    tracing::info!("shutdown signal received");
+    tracing::info!("shutdown signal received; draining (a second one exits at once)");
+    tokio::spawn(async {
+        let code = next_signal().await;
+        tracing::warn!("second shutdown signal: exiting without finishing the drain");
+        std::process::exit(i32::from(code));
+    });
 }
 
 /// The next SIGINT or SIGTERM, as the exit code a process it ends reports
