@@ -453,11 +453,14 @@ fn error_lines(invalid: &Invalid) -> Vec<String> {
         .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
         .collect();
     if invalid.unlisted > 0 {
-        lines.push(format!(
-            "{} more invalid values not listed (only the first {} are)",
-            invalid.unlisted,
-            invalid.errors.len()
-        ));
+        lines.push(match (invalid.unlisted, invalid.errors.len()) {
+            (1, 1) => "1 more invalid value not listed (only the first is)".to_owned(),
+            (1, listed) => format!("1 more invalid value not listed (only the first {listed} are)"),
+            (more, 1) => format!("{more} more invalid values not listed (only the first is)"),
+            (more, listed) => {
+                format!("{more} more invalid values not listed (only the first {listed} are)")
+            }
+        });
     }
     if invalid.incomplete {
         lines.push(

@@ -861,6 +861,22 @@ fn errors_under_a_huge_key_are_listed_up_to_a_byte_cap() {
         assert_eq!(e.pointer, format!("/{key}/a{i}"));
     }
 
+    // A key repeated three times is one invalid value, listed or only
+    // counted: 1 + 2 under a huge key as 3 under a small one.
+    for parent in ["x".to_owned(), "k".repeat(70_000)] {
+        let body = format!(r#"{{"{parent}": {{"a0":1,"a0":1,"a1":1,"a1":1,"a1":1}}}}"#);
+        let Err(ParseError::Shape(shapes)) = parse(body.as_bytes()) else {
+            panic!("accepted");
+        };
+        let invalid = shapes.with_range_errors(&Limits::default());
+        assert_eq!(
+            invalid.errors.len() + invalid.unlisted,
+            3,
+            "{}",
+            parent.len()
+        );
+    }
+
     // Small pointers still get the full hundred.
     let pairs: Vec<String> = (0..150).map(|i| format!(r#""a{i}":1,"a{i}":1"#)).collect();
     let body = format!(r#"{{"x": {{{}}}}}"#, pairs.join(","));
