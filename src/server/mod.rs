@@ -433,16 +433,44 @@ pub async fn run(
 }
 
 /// Resolves on SIGINT or SIGTERM, and from then on a second one ends the
-/// process at once (exit code 130 or 143), without finishing the drain: the
-/// way out of a long drain at a terminal (`docker run -it`, Ctrl-C twice).
+/// process at once (`std::process::exit`, code 130 or 143), without
+/// finishing the drain: the way out of a long drain at a terminal (`docker
+/// run -it`, Ctrl-C twice). Meant for the binary ([`serve_forever`]); a
+/// program that embeds [`run`] and must not exit passes its own future.
 pub async fn shutdown_signal() {
+    #[cfg(unix)]
+    {
+        use tokio::signal::unix::{SignalKind, signal};
+        // Both streams are made before the first signal and kept for the
+        // second, so that none is missed between them. Two signals that
+        // arrive before the runtime has taken the first (within about a
+        // millisecond, more on a busy machine) still count as one: tokio
+        // coalesces them, as the kernel does pending signals. That is
+        // wanted: a signal sent to a process group and to the process
+        // itself is one request to stop, and should drain.
+        if let (Ok(mut int), Ok(mut term)) = (
+            signal(SignalKind::interrupt()),
+            signal(SignalKind::terminate()),
+        ) {
+            tokio::select! {
+                _ = int.recv() => {}
+                _ = term.recv() => {}
+            }
+            tracing::info!("shutdown signal received; draining (a second one exits at once)");
+            tokio::spawn(async move {
+                let code = tokio::select! {
+                    _ = int.recv() => 130,
+                    _ = term.recv() => 143,
+                };
+                tracing::warn!("second shutdown signal: exiting without finishing the drain");
+                std::process::exit(code);
+            });
+            return;
+        }
+    }
+    // No signal streams (or not Unix): the first signal only.
     next_signal().await;
-    tracing::info!("shutdown signal received; draining (a second one exits at once)");
-    tokio::spawn(async {
-        let code = next_signal().await;
-        tracing::warn!("second shutdown signal: exiting without finishing the drain");
-        std::process::exit(i32::from(code));
-    });
+    tracing::info!("shutdown signal received");
 }
 
 /// The next SIGINT or SIGTERM, as the exit code a process it ends reports
