@@ -101,21 +101,42 @@ fn name_env_source(
     use clap::CommandFactory;
     use clap::error::{ContextKind, ContextValue, ErrorKind};
     let args: Vec<std::ffi::OsString> = args.into_iter().collect();
+    let original_len = args.len();
     // clap says only "invalid UTF-8 was detected in one or more arguments";
     // when the command line is clean, the culprit is a variable, a place a
     // user would not look.
-    if err.kind() == ErrorKind::InvalidUtf8 && args.iter().all(|a| a.to_str().is_some()) {
+    let args: Vec<&str> = args.iter().filter_map(|a| a.to_str()).collect();
+    if err.kind() == ErrorKind::InvalidUtf8 && args.len() == original_len {
+        // The variables clap read: those of the subcommand being run (the
+        // first word that is not a flag; none means `serve`) whose flag is
+        // not on the command line.
         let cmd = Cli::command();
-        let bad_env = std::iter::once(&cmd)
-            .chain(cmd.get_subcommands())
+        let sub = args
+            .iter()
+            .skip(1)
+            .find(|a| !a.starts_with('-'))
+            .map_or("serve", |a| *a);
+        let bad: Vec<&str> = cmd
+            .find_subcommand(sub)
+            .into_iter()
             .flat_map(clap::Command::get_arguments)
+            .filter(|a| {
+                a.get_long()
+                    .is_none_or(|long| !on_command_line(&args, long))
+            })
             .filter_map(|a| a.get_env()?.to_str())
-            .find(|name| std::env::var_os(name).is_some_and(|v| v.to_str().is_none()));
-        if let Some(name) = bad_env {
-            return clap::Error::raw(
-                ErrorKind::InvalidUtf8,
-                format!("the value of {name} is not valid UTF-8\n"),
-            );
+            .filter(|name| std::env::var_os(name).is_some_and(|v| v.to_str().is_none()))
+            .collect();
+        let message = match bad.as_slice() {
+            [] => None,
+            [one] => Some(format!("the value of {one} is not valid UTF-8")),
+            many => Some(format!(
+                "the values of {} are not valid UTF-8",
+                many.join(", ")
+            )),
+        };
+        if let Some(message) = message {
+            return clap::Error::raw(ErrorKind::InvalidUtf8, format!("{message}\n"));
         }
     }
     if !matches!(
@@ -135,12 +156,7 @@ fn name_env_source(
     else {
         return err;
     };
-    let flag = format!("--{long}");
-    let on_command_line = args.iter().any(|a| {
-        a.to_str()
-            .is_some_and(|a| a == flag || a.starts_with(&format!("{flag}=")))
-    });
-    if on_command_line {
+    if on_command_line(&args, &long) {
         return err;
     }
     let cmd = Cli::command();
@@ -155,6 +171,15 @@ fn name_env_source(
         err.insert(ContextKind::InvalidArg, ContextValue::String(env));
     }
     err
+}
+
+/// Whether `--LONG` is given in `args` (`--LONG VALUE` or `--LONG=VALUE`).
+fn on_command_line(args: &[&str], long: &str) -> bool {
+    let flag = format!("--{long}");
+    args.iter().any(|a| {
+        a.strip_prefix(flag.as_str())
+            .is_some_and(|rest| rest.is_empty() || rest.starts_with('='))
+    })
 }
 
 /// Where a service started with the same environment listens: `ILQR_BIND`

@@ -175,31 +175,54 @@ fn a_bad_value_names_where_it_came_from() {
 fn a_variable_that_is_not_utf8_is_named() {
     use std::os::unix::ffi::OsStrExt;
     let bad = std::ffi::OsStr::from_bytes(b"\xff");
-    for (args, expected) in [
+    type Case<'a> = (&'a [&'a str], &'a [&'a str], &'a str);
+    let cases: [Case; 5] = [
         (
-            &[][..],
+            &[],
+            &["ILQR_WORKERS"],
             "error: the value of ILQR_WORKERS is not valid UTF-8",
         ),
         (
-            &["serve"][..],
+            &["serve"],
+            &["ILQR_WORKERS"],
             "error: the value of ILQR_WORKERS is not valid UTF-8",
         ),
-    ] {
+        // Not a variable whose flag is given (clap does not read it) ...
+        (
+            &["serve", "--workers", "2"],
+            &["ILQR_WORKERS", "ILQR_GZIP_LEVEL"],
+            "error: the value of ILQR_GZIP_LEVEL is not valid UTF-8",
+        ),
+        // ... nor one of another subcommand.
+        (
+            &["healthcheck"],
+            &["ILQR_BIND", "ILQR_HEALTHCHECK_ADDR"],
+            "error: the value of ILQR_HEALTHCHECK_ADDR is not valid UTF-8",
+        ),
+        (
+            &[],
+            &["ILQR_WORKERS", "ILQR_GZIP_LEVEL"],
+            "error: the values of ILQR_WORKERS, ILQR_GZIP_LEVEL are not valid UTF-8",
+        ),
+    ];
+    for (args, bad_vars, expected) in cases {
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
         for (name, _) in std::env::vars_os() {
             if name.to_string_lossy().starts_with("ILQR_") {
                 cmd.env_remove(name);
             }
         }
+        for name in bad_vars {
+            cmd.env(name, bad);
+        }
         let out = cmd
             .args(args)
-            .env("ILQR_WORKERS", bad)
             .env("ILQR_MAX_BODY_BYTES", "1")
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
         assert_eq!(out.status.code(), Some(2), "{args:?}: {stderr}");
-        assert!(stderr.contains(expected), "{args:?}: {stderr}");
+        assert_eq!(stderr.trim_end(), expected, "{args:?}");
     }
     let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
         .arg("serve")
