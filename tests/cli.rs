@@ -236,6 +236,33 @@ fn a_variable_that_is_not_utf8_is_named() {
     assert!(stderr.contains("invalid UTF-8 was detected"), "{stderr}");
 }
 
+/// The health check's 2 s cover connect, write and every read together: a
+/// peer that trickles its answer a byte every 300 ms cannot stretch it (each
+/// read had its own 2 s, so this took 4 s and more), and the addresses after
+/// it fail at once.
+#[test]
+fn the_healthcheck_deadline_covers_a_trickling_answer() {
+    use std::io::Write;
+    use std::time::{Duration, Instant};
+    let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let addr = listener.local_addr().unwrap();
+    std::thread::spawn(move || {
+        let (mut peer, _) = listener.accept().unwrap();
+        for b in b"HTTP/1.1 200 OK\r\n" {
+            std::thread::sleep(Duration::from_millis(300));
+            if peer.write_all(&[*b]).is_err() {
+                return;
+            }
+        }
+    });
+    let started = Instant::now();
+    let err = ilqr_service::server::healthcheck_any(&[addr, addr]).unwrap_err();
+    let took = started.elapsed();
+    assert!(took < Duration::from_millis(2500), "{took:?}: {err}");
+    assert!(took >= Duration::from_millis(1900), "{took:?}: {err}");
+    assert_eq!(err, format!("{addr}: timed out; {addr}: timed out"));
+}
+
 /// Kills the server child when the test ends, whether it passes or not.
 struct Child(std::process::Child);
 

@@ -565,12 +565,7 @@ pub fn healthcheck_any(addrs: &[SocketAddr]) -> Result<(), String> {
     let deadline = std::time::Instant::now() + Duration::from_secs(2);
     let mut failures = Vec::new();
     for addr in addrs {
-        let left = deadline.saturating_duration_since(std::time::Instant::now());
-        if left.is_zero() {
-            failures.push(format!("{addr}: not tried, the 2 s were spent"));
-            continue;
-        }
-        match healthz(addr, left) {
+        match healthz(addr, deadline) {
             Ok(()) => return Ok(()),
             Err(e) => failures.push(format!("{addr}: {e}")),
         }
@@ -578,17 +573,51 @@ pub fn healthcheck_any(addrs: &[SocketAddr]) -> Result<(), String> {
     Err(failures.join("; "))
 }
 
-fn healthz(addr: &SocketAddr, timeout: Duration) -> Result<(), String> {
+/// One address, everything (connect, write, each read) within `deadline`.
+fn healthz(addr: &SocketAddr, deadline: std::time::Instant) -> Result<(), String> {
+    let left = || {
+        let left = deadline.saturating_duration_since(std::time::Instant::now());
+        // A zero timeout is an error for connect and "none" for reads.
+        if left.is_zero() {
+            Err("timed out".to_owned())
+        } else {
+            Ok(left)
+        }
+    };
     let mut stream =
-        std::net::TcpStream::connect_timeout(addr, timeout).map_err(|e| e.to_string())?;
+        std::net::TcpStream::connect_timeout(addr, left()?).map_err(|e| e.to_string())?;
     stream
-        .set_read_timeout(Some(timeout))
+        .set_write_timeout(Some(left()?))
         .map_err(|e| e.to_string())?;
     stream
         .write_all(b"GET /healthz HTTP/1.1\r\nHost: localhost\r\nConnection: close\r\n\r\n")
         .map_err(|e| e.to_string())?;
+    // "HTTP/1.1 200", read in as many pieces as the peer sends, each read
+    // bounded by what is left of the deadline (a trickling peer cannot
+    // stretch it).
     let mut head = [0u8; 12];
-    stream.read_exact(&mut head).map_err(|e| e.to_string())?;
+    let mut got = 0;
+    while got < head.len() {
+        stream
+            .set_read_timeout(Some(left()?))
+            .map_err(|e| e.to_string())?;
+        match stream.read(&mut head[got..]) {
+            Ok(0) => return Err("connection closed before an answer".to_owned()),
+            Ok(n) => got += n,
+            Err(e) if e.kind() == std::io::ErrorKind::Interrupted => {}
+            // What a read timeout looks like on Unix ("Resource
+            // temporarily unavailable").
+            Err(e)
+                if matches!(
+                    e.kind(),
+                    std::io::ErrorKind::WouldBlock | std::io::ErrorKind::TimedOut
+                ) =>
+            {
+                return Err("timed out".to_owned());
+            }
+            Err(e) => return Err(e.to_string()),
+        }
+    }
     if head.starts_with(b"HTTP/1.1 200") {
         Ok(())
     } else {
