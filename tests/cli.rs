@@ -110,6 +110,18 @@ fn a_bind_address_must_be_ip_and_port() {
     );
 }
 
+/// The binary without the `ILQR_*` variables this process inherited, so
+/// that a case sets only its own (an inherited bad one would answer first).
+fn without_ilqr_env() -> Command {
+    let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+    for (name, _) in std::env::vars_os() {
+        if name.to_string_lossy().starts_with("ILQR_") {
+            cmd.env_remove(name);
+        }
+    }
+    cmd
+}
+
 /// A bad value from an environment variable is reported under the
 /// variable's name (clap names the flag, which the command line may not
 /// have); one from the flag keeps the flag's name. Both exit 2 at once.
@@ -144,14 +156,7 @@ fn a_bad_value_names_where_it_came_from() {
         ),
     ];
     for (args, env, expected) in cases {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
-        // Only the variables of the case: an inherited bad one would
-        // answer first.
-        for (name, _) in std::env::vars_os() {
-            if name.to_string_lossy().starts_with("ILQR_") {
-                cmd.env_remove(name);
-            }
-        }
+        let mut cmd = without_ilqr_env();
         let out = cmd
             .args(args)
             .envs(env.iter().copied())
@@ -206,12 +211,7 @@ fn a_variable_that_is_not_utf8_is_named() {
         ),
     ];
     for (args, bad_vars, expected) in cases {
-        let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
-        for (name, _) in std::env::vars_os() {
-            if name.to_string_lossy().starts_with("ILQR_") {
-                cmd.env_remove(name);
-            }
-        }
+        let mut cmd = without_ilqr_env();
         for name in bad_vars {
             cmd.env(name, bad);
         }
