@@ -258,7 +258,7 @@ fn the_healthcheck_deadline_covers_a_trickling_answer() {
     let started = Instant::now();
     let err = ilqr_service::server::healthcheck_any(&[addr, addr]).unwrap_err();
     let took = started.elapsed();
-    assert!(took < Duration::from_millis(2500), "{took:?}: {err}");
+    assert!(took < Duration::from_secs(3), "{took:?}: {err}");
     assert!(took >= Duration::from_millis(1900), "{took:?}: {err}");
     assert_eq!(err, format!("{addr}: timed out; {addr}: timed out"));
 }

@@ -432,6 +432,9 @@ pub async fn run(
     Ok(())
 }
 
+/// Signals closer together than this are one request to stop.
+const SIGNALS_APART: Duration = Duration::from_millis(10);
+
 /// Resolves on SIGINT or SIGTERM, and from then on a second one ends the
 /// process at once (`std::process::exit`, code 130 or 143), without
 /// finishing the drain: the way out of a long drain at a terminal (`docker
@@ -442,12 +445,13 @@ pub async fn shutdown_signal() {
     {
         use tokio::signal::unix::{SignalKind, signal};
         // Both streams are made before the first signal and kept for the
-        // second, so that none is missed between them. Two signals that
-        // arrive before the runtime has taken the first (within about a
-        // millisecond, more on a busy machine) still count as one: tokio
-        // coalesces them, as the kernel does pending signals. That is
-        // wanted: a signal sent to a process group and to the process
-        // itself is one request to stop, and should drain.
+        // second, so that none is missed between them. Signals within
+        // SIGNALS_APART of the first count as one, which is wanted: a
+        // signal sent to a process group and to the process itself is one
+        // request to stop, and should drain. (Two of the same kind that
+        // arrive before the runtime has taken the first, later on a busy
+        // machine, are one anyway: tokio coalesces them, as the kernel does
+        // pending signals.)
         if let (Ok(mut int), Ok(mut term)) = (
             signal(SignalKind::interrupt()),
             signal(SignalKind::terminate()),
@@ -456,14 +460,23 @@ pub async fn shutdown_signal() {
                 _ = int.recv() => {}
                 _ = term.recv() => {}
             }
+            let first = std::time::Instant::now();
             tracing::info!("shutdown signal received; draining (a second one exits at once)");
             tokio::spawn(async move {
-                let code = tokio::select! {
-                    _ = int.recv() => 130,
-                    _ = term.recv() => 143,
-                };
-                tracing::warn!("second shutdown signal: exiting without finishing the drain");
-                std::process::exit(code);
+                loop {
+                    let code = tokio::select! {
+                        _ = int.recv() => 130,
+                        _ = term.recv() => 143,
+                    };
+                    // A SIGINT and a SIGTERM together (each stream holds
+                    // its own) are one request too.
+                    if first.elapsed() >= SIGNALS_APART {
+                        tracing::warn!(
+                            "second shutdown signal: exiting without finishing the drain"
+                        );
+                        std::process::exit(code);
+                    }
+                }
             });
             return;
         }
@@ -548,6 +561,10 @@ fn init_logging(format: LogFormat) {
 /// `::1` first, where an IPv4-only service refuses).
 pub fn healthcheck(addr: &str) -> Result<(), String> {
     use std::net::ToSocketAddrs;
+    // The deadline starts before the name is resolved, which counts
+    // against it (a resolver slower than 2 s is not cut short, though:
+    // the system's lookup cannot be bounded from here).
+    let deadline = std::time::Instant::now() + HEALTHCHECK_BUDGET;
     let addrs: Vec<SocketAddr> = addr
         .to_socket_addrs()
         .map_err(|e| format!("bad address {addr} (expected HOST:PORT): {e}"))?
@@ -555,14 +572,20 @@ pub fn healthcheck(addr: &str) -> Result<(), String> {
     if addrs.is_empty() {
         return Err(format!("{addr} resolves to no address"));
     }
-    healthcheck_any(&addrs)
+    check_until(&addrs, deadline)
 }
 
+/// All of a health check's work: a container's check is killed after its
+/// own timeout, 3 s in ours.
+const HEALTHCHECK_BUDGET: Duration = Duration::from_secs(2);
+
 /// [`healthcheck`] on each of `addrs` in turn until one answers 200, all
-/// within 2 s (a container's check is killed after its own timeout, 3 s in
-/// ours). The error lists each address's failure.
+/// within [`HEALTHCHECK_BUDGET`]. The error lists each address's failure.
 pub fn healthcheck_any(addrs: &[SocketAddr]) -> Result<(), String> {
-    let deadline = std::time::Instant::now() + Duration::from_secs(2);
+    check_until(addrs, std::time::Instant::now() + HEALTHCHECK_BUDGET)
+}
+
+fn check_until(addrs: &[SocketAddr], deadline: std::time::Instant) -> Result<(), String> {
     let mut failures = Vec::new();
     for addr in addrs {
         match healthz(addr, deadline) {
