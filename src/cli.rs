@@ -334,8 +334,11 @@ impl Signals {
             };
             rt.block_on(async {
                 let mut first = true;
+                // One listener for all the signals, so that none is missed
+                // between two of them.
+                let mut stop = server::StopSignals::new();
                 loop {
-                    let received = server::next_signal().await;
+                    let received = stop.next().await;
                     if finishing.load(Ordering::SeqCst) {
                         eprintln!("finishing: writing the result");
                     } else if first {

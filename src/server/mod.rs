@@ -441,75 +441,74 @@ const SIGNALS_APART: Duration = Duration::from_millis(10);
 /// run -it`, Ctrl-C twice). Meant for the binary ([`serve_forever`]); a
 /// program that embeds [`run`] and must not exit passes its own future.
 pub async fn shutdown_signal() {
-    #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        // Both streams are made before the first signal and kept for the
-        // second, so that none is missed between them. Signals within
-        // SIGNALS_APART of the first count as one, which is wanted: a
-        // signal sent to a process group and to the process itself is one
-        // request to stop, and should drain. (Two of the same kind that
-        // arrive before the runtime has taken the first, later on a busy
-        // machine, are one anyway: tokio coalesces them, as the kernel does
-        // pending signals.)
-        if let (Ok(mut int), Ok(mut term)) = (
-            signal(SignalKind::interrupt()),
-            signal(SignalKind::terminate()),
-        ) {
-            tokio::select! {
-                _ = int.recv() => {}
-                _ = term.recv() => {}
+    let mut signals = StopSignals::new();
+    signals.next().await;
+    let first = std::time::Instant::now();
+    tracing::info!("shutdown signal received; draining (a second one exits at once)");
+    tokio::spawn(async move {
+        loop {
+            let code = signals.next().await;
+            // Signals within SIGNALS_APART of the first are one request to
+            // stop, which should drain: one sent to a process group and to
+            // the process itself, or a SIGINT and a SIGTERM together.
+            if first.elapsed() >= SIGNALS_APART {
+                tracing::warn!("second shutdown signal: exiting without finishing the drain");
+                std::process::exit(i32::from(code));
             }
-            let first = std::time::Instant::now();
-            tracing::info!("shutdown signal received; draining (a second one exits at once)");
-            tokio::spawn(async move {
-                loop {
-                    let code = tokio::select! {
-                        _ = int.recv() => 130,
-                        _ = term.recv() => 143,
-                    };
-                    // A SIGINT and a SIGTERM together (each stream holds
-                    // its own) are one request too.
-                    if first.elapsed() >= SIGNALS_APART {
-                        tracing::warn!(
-                            "second shutdown signal: exiting without finishing the drain"
-                        );
-                        std::process::exit(code);
-                    }
-                }
-            });
-            return;
         }
-    }
-    // No signal streams (or not Unix): the first signal only.
-    next_signal().await;
-    tracing::info!("shutdown signal received");
+    });
 }
 
-/// The next SIGINT or SIGTERM, as the exit code a process it ends reports
-/// (128 + its number: 130, 143). Also what `solve` on the command line
-/// stops on.
-pub async fn next_signal() -> u8 {
+/// SIGINT and SIGTERM, listened for from [`StopSignals::new`] on, so that
+/// none sent between two [`StopSignals::next`] calls is missed: a listener
+/// made after a signal does not see it, while tokio's handler, installed
+/// for good by the first listener, keeps the signal from ending the
+/// process. (Two of the same kind that arrive before the runtime has taken
+/// the first are one anyway: tokio coalesces them, as the kernel does
+/// pending signals.) Also what `solve` on the command line stops on.
+pub struct StopSignals {
     #[cfg(unix)]
-    {
-        use tokio::signal::unix::{SignalKind, signal};
-        let term = async {
-            match signal(SignalKind::terminate()) {
-                Ok(mut s) => {
-                    s.recv().await;
-                }
-                Err(_) => std::future::pending::<()>().await,
-            }
-        };
-        tokio::select! {
-            _ = tokio::signal::ctrl_c() => 130,
-            () = term => 143,
+    streams: Option<(tokio::signal::unix::Signal, tokio::signal::unix::Signal)>,
+}
+
+impl StopSignals {
+    /// Start listening; inside a tokio runtime with I/O enabled.
+    pub fn new() -> Self {
+        #[cfg(unix)]
+        {
+            use tokio::signal::unix::{SignalKind, signal};
+            let streams = match (
+                signal(SignalKind::interrupt()),
+                signal(SignalKind::terminate()),
+            ) {
+                (Ok(int), Ok(term)) => Some((int, term)),
+                _ => None,
+            };
+            Self { streams }
         }
+        #[cfg(not(unix))]
+        Self {}
     }
-    #[cfg(not(unix))]
-    {
+
+    /// The next SIGINT or SIGTERM, as the exit code a process it ends
+    /// reports (128 + its number: 130, 143).
+    pub async fn next(&mut self) -> u8 {
+        #[cfg(unix)]
+        if let Some((int, term)) = &mut self.streams {
+            return tokio::select! {
+                _ = int.recv() => 130,
+                _ = term.recv() => 143,
+            };
+        }
+        // No streams (or not Unix): Ctrl-C only.
         let _ = tokio::signal::ctrl_c().await;
         130
+    }
+}
+
+impl Default for StopSignals {
+    fn default() -> Self {
+        Self::new()
     }
 }
 
