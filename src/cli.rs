@@ -481,14 +481,19 @@ fn error_lines(invalid: &Invalid) -> Vec<String> {
         .map(|f| format!("{}: {}", pointer_label(&f.pointer), f.detail))
         .collect();
     if invalid.unlisted > 0 {
-        lines.push(match (invalid.unlisted, invalid.errors.len()) {
-            (1, 1) => "1 more invalid value not listed (only the first is)".to_owned(),
-            (1, listed) => format!("1 more invalid value not listed (only the first {listed} are)"),
-            (more, 1) => format!("{more} more invalid values not listed (only the first is)"),
-            (more, listed) => {
-                format!("{more} more invalid values not listed (only the first {listed} are)")
-            }
-        });
+        let values = if invalid.unlisted == 1 {
+            "value"
+        } else {
+            "values"
+        };
+        let listed = match invalid.errors.len() {
+            1 => "the first is".to_owned(),
+            n => format!("the first {n} are"),
+        };
+        lines.push(format!(
+            "{} more invalid {values} not listed (only {listed})",
+            invalid.unlisted
+        ));
     }
     if invalid.incomplete {
         lines.push(

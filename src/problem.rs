@@ -1023,11 +1023,10 @@ pub fn elide(text: String) -> String {
     }
     let (head, tail) = (100, 250);
     let cut = chars - head - tail;
-    let start = text.char_indices().nth(head).map_or(0, |(i, _)| i);
-    let end = text
-        .char_indices()
-        .nth(head + cut)
-        .map_or(text.len(), |(i, _)| i);
+    // Byte offsets of the head's end and the tail's start, in one pass.
+    let mut at = text.char_indices().map(|(i, _)| i);
+    let start = at.nth(head).unwrap_or(0);
+    let end = at.nth(cut - 1).unwrap_or(text.len());
     format!(
         "{} [... {cut} characters left out ...] {}",
         &text[..start],
