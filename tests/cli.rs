@@ -61,6 +61,26 @@ fn settings_out_of_range_are_rejected_before_serving() {
         (&["--default-time-limit-ms", "0"], "--default-time-limit-ms"),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
         (&["--retry-after-secs", "0"], "--retry-after-secs"),
+        // These passed, logged "listening", then failed: every connection
+        // panicked in hyper's timer, or the pool reserved the whole queue.
+        (
+            &["--read-timeout-secs", "10000000000000000000"],
+            "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS: expected 1 to 3600 seconds, \
+             got 10000000000000000000",
+        ),
+        (
+            &["--queue-capacity", "18446744073709551615"],
+            "--queue-capacity / ILQR_QUEUE_CAPACITY: expected at most 65536, \
+             got 18446744073709551615",
+        ),
+        (
+            &["--workers", "5000"],
+            "--workers / ILQR_WORKERS: expected 1 to 1024 threads, got 5000",
+        ),
+        (
+            &["--runtime-threads", "1025"],
+            "--runtime-threads / ILQR_RUNTIME_THREADS: expected 1 to 1024 threads, got 1025",
+        ),
         (
             &["--default-time-limit-ms", "70000"],
             "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS (70000) must not exceed \
@@ -400,6 +420,18 @@ fn a_config_built_in_code_is_checked_too() {
         },
         Config {
             default_time_limit_ms: 70_000,
+            ..Config::default()
+        },
+        Config {
+            read_timeout_secs: 0,
+            ..Config::default()
+        },
+        Config {
+            read_timeout_secs: 3601,
+            ..Config::default()
+        },
+        Config {
+            queue_capacity: 65_537,
             ..Config::default()
         },
     ] {

@@ -51,6 +51,20 @@ use pool::Pool;
 /// need more (100 obstacles: 4.2 KB compact, 9.6 KB pretty-printed).
 pub const MIN_BODY_BYTES: usize = 4096;
 
+/// Largest `--queue-capacity`. Each waiting solve holds its parsed problem
+/// (up to ~0.3 MB with 10000 rows of `initial_controls`), and a client that
+/// leaves is withdrawn by a linear search of the queue under its lock; a
+/// queue this long already waits minutes for 2 workers.
+pub const MAX_QUEUE_CAPACITY: usize = 65_536;
+
+/// Largest `--workers` and `--runtime-threads`: a typo of a few digits
+/// would otherwise start that many threads before failing.
+pub const MAX_THREADS: usize = 1024;
+
+/// Largest `--read-timeout-secs`: an hour. Far larger values overflow the
+/// timer's deadline arithmetic, in every connection rather than at start.
+pub const MAX_READ_TIMEOUT_SECS: u64 = 3600;
+
 /// `--bind` / `ILQR_BIND`: an IP address and port, with an error that says
 /// so (and names both spellings: clap's own names only the flag, and the
 /// value may have come from the environment).
@@ -72,7 +86,7 @@ pub struct Config {
     /// differs between machines.
     #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080", value_parser = parse_bind)]
     pub bind: SocketAddr,
-    /// Solver threads, at least 1 (default: the available cores).
+    /// Solver threads, 1 to 1024 (default: the available cores).
     #[arg(long, env = "ILQR_WORKERS")]
     pub workers: Option<std::num::NonZeroUsize>,
     /// Async runtime threads, which accept connections, parse and validate
@@ -80,10 +94,11 @@ pub struct Config {
     /// / 8 rounded up, so 1 up to 8 cores). A request costs them tens of
     /// microseconds next to a solve's milliseconds; on 2 cores a second
     /// runtime thread doubled the context switches per request and added
-    /// ~25 µs of kernel time to each (bench/server_cost.sh).
+    /// ~25 µs of kernel time to each (bench/server_cost.sh). At most 1024.
     #[arg(long, env = "ILQR_RUNTIME_THREADS")]
     pub runtime_threads: Option<std::num::NonZeroUsize>,
-    /// Solves that may wait for a worker before new ones get 503.
+    /// Solves that may wait for a worker before new ones get 503, at most
+    /// 65536.
     #[arg(long, env = "ILQR_QUEUE_CAPACITY", default_value_t = 16)]
     pub queue_capacity: usize,
     /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms; at
@@ -116,6 +131,7 @@ pub struct Config {
     /// body. A connection that stalls longer is closed (headers) or answered
     /// 408 (body), so slow or stuck clients cannot pile up connections or
     /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.12 Mbit/s.
+    /// 1 to 3600.
     #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
           value_parser = clap::value_parser!(u64).range(1..))]
     pub read_timeout_secs: u64,
@@ -208,6 +224,33 @@ impl Config {
             if ms == 0 {
                 return Err(format!("{name}: expected at least 1 ms, got 0"));
             }
+        }
+        if self.queue_capacity > MAX_QUEUE_CAPACITY {
+            return Err(format!(
+                "--queue-capacity / ILQR_QUEUE_CAPACITY: expected at most \
+                 {MAX_QUEUE_CAPACITY}, got {}",
+                self.queue_capacity
+            ));
+        }
+        for (name, threads) in [
+            ("--workers / ILQR_WORKERS", self.workers),
+            (
+                "--runtime-threads / ILQR_RUNTIME_THREADS",
+                self.runtime_threads,
+            ),
+        ] {
+            if let Some(n) = threads.filter(|n| n.get() > MAX_THREADS) {
+                return Err(format!(
+                    "{name}: expected 1 to {MAX_THREADS} threads, got {n}"
+                ));
+            }
+        }
+        if !(1..=MAX_READ_TIMEOUT_SECS).contains(&self.read_timeout_secs) {
+            return Err(format!(
+                "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS: expected 1 to \
+                 {MAX_READ_TIMEOUT_SECS} seconds, got {}",
+                self.read_timeout_secs
+            ));
         }
         if self.default_time_limit_ms > self.max_time_limit_ms {
             return Err(format!(
@@ -520,17 +563,25 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(async move {
-        let listener = TcpListener::bind(config.bind).await.map_err(|e| {
-            std::io::Error::new(e.kind(), format!("cannot listen on {}: {e}", config.bind))
-        })?;
+        let (bind, workers, runtime_threads, queue_capacity) = (
+            config.bind,
+            config.workers(),
+            config.runtime_threads(),
+            config.queue_capacity,
+        );
+        // The state (its checks, the worker threads) before the socket, so
+        // that "listening" is logged only by a server that can serve.
+        let state = AppState::new(config)?;
+        let listener = TcpListener::bind(bind)
+            .await
+            .map_err(|e| std::io::Error::new(e.kind(), format!("cannot listen on {bind}: {e}")))?;
         tracing::info!(
             addr = %listener.local_addr()?,
-            workers = config.workers(),
-            runtime_threads = config.runtime_threads(),
-            queue_capacity = config.queue_capacity,
+            workers,
+            runtime_threads,
+            queue_capacity,
             "listening"
         );
-        let state = AppState::new(config)?;
         run(listener, state, shutdown_signal()).await
     })
 }

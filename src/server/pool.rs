@@ -87,7 +87,9 @@ impl Pool {
         let workers = workers.max(1);
         let shared = Arc::new(Shared {
             state: Mutex::new(State {
-                queue: VecDeque::with_capacity(capacity),
+                // Room for a typical queue up front, not for the configured
+                // maximum: a capacity of thousands is memory never touched.
+                queue: VecDeque::with_capacity(capacity.min(64)),
                 running: 0,
                 idle: 0,
                 next_id: 0,
