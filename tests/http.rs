@@ -920,6 +920,27 @@ async fn a_client_stalled_in_its_headers_is_disconnected() {
     assert!(took >= Duration::from_millis(900), "{took:?}");
 }
 
+/// A connection that sends nothing at all, or only the start of an HTTP/2
+/// preface, is closed too: both used to stay open forever (hyper-util's
+/// HTTP/1-or-2 detection had no timeout), so idle sockets could pile up.
+#[tokio::test]
+async fn a_silent_or_http2_connection_is_not_kept_open() {
+    use tokio::io::AsyncWriteExt;
+    let s = Server::start(read_timeout(1)).await;
+    let silent = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+    let took = time_until_closed(silent, Duration::from_secs(5)).await;
+    assert!(took >= Duration::from_millis(900), "{took:?}");
+    for preface in [
+        &b"PRI * HTTP/2.0\r\n"[..],
+        b"PRI * HTTP/2.0\r\n\r\nSM\r\n\r\n",
+    ] {
+        let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        conn.write_all(preface).await.unwrap();
+        let took = time_until_closed(conn, Duration::from_secs(5)).await;
+        assert!(took < Duration::from_millis(1500), "{took:?}");
+    }
+}
+
 /// A client that stalls mid-body gets a 408 problem after the read timeout.
 #[tokio::test]
 async fn a_client_stalled_in_its_body_gets_408() {

@@ -385,10 +385,14 @@ const CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
 
 /// Serve on `listener` until `shutdown` resolves, then drain and return.
 ///
-/// The accept loop is hyper-util's, as in `axum::serve`, plus what that
-/// lacks: a header read timeout (hyper's `header_read_timeout` needs a timer,
-/// which `axum::serve` does not set, so a client that never finished its
-/// headers held its connection forever) and a bound on shutdown. Shutdown:
+/// The accept loop is `axum::serve`'s, plus what that lacks: a header read
+/// timeout (hyper's `header_read_timeout` needs a timer, which
+/// `axum::serve` does not set, so a client that never finished its headers
+/// held its connection forever) and a bound on shutdown. HTTP/1.1 only:
+/// hyper's HTTP/2 has no idle or first-request timeout, and hyper-util's
+/// HTTP/1-or-2 detection none either, so a connection that sent nothing, or
+/// the start of the HTTP/2 preface, stayed open forever. (gRPC will want
+/// HTTP/2 with a timeout of its own.) Shutdown:
 /// on `shutdown`, [`AppState::drain`] runs while connections are still
 /// accepted (`/readyz` and `/solve` answer 503); then the listener closes,
 /// every connection is told to finish its current exchange, and after
@@ -399,8 +403,8 @@ pub async fn run(
     state: Arc<AppState>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
-    use hyper_util::rt::{TokioExecutor, TokioIo, TokioTimer};
-    use hyper_util::server::conn::auto::Builder;
+    use hyper::server::conn::http1::Builder;
+    use hyper_util::rt::{TokioIo, TokioTimer};
     use hyper_util::service::TowerToHyperService;
     use tower::ServiceExt;
 
@@ -438,13 +442,10 @@ pub async fn run(
                 let service = TowerToHyperService::new(service.clone());
                 let mut stop = stop_rx.clone();
                 connections.spawn(async move {
-                    let mut builder = Builder::new(TokioExecutor::new());
-                    builder
-                        .http1()
+                    let conn = Builder::new()
                         .timer(TokioTimer::new())
-                        .header_read_timeout(read_timeout);
-                    builder.http2().timer(TokioTimer::new());
-                    let conn = builder.serve_connection_with_upgrades(TokioIo::new(io), service);
+                        .header_read_timeout(read_timeout)
+                        .serve_connection(TokioIo::new(io), service);
                     let mut conn = std::pin::pin!(conn);
                     tokio::select! {
                         _ = conn.as_mut() => return,
