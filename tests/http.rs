@@ -720,8 +720,8 @@ async fn metrics_count_requests_solves_and_rejections() {
     }
 }
 
-/// The served spec carries this server's limits; everything else is the
-/// committed spec, unchanged.
+/// The served spec carries this server's limits and a relative server URL;
+/// everything else is the committed spec, unchanged.
 #[tokio::test]
 async fn the_served_spec_states_this_servers_limits() {
     let s = Server::start(Config {
@@ -744,6 +744,11 @@ async fn the_served_spec_states_this_servers_limits() {
     let problem = &mut schemas["ProblemSpec"];
     problem["properties"]["solver"]["default"]["time_limit_ms"] = json!(1500);
     problem["example"]["solver"]["time_limit_ms"] = json!(1500);
+    // And where it is served from (the committed file is not served).
+    expected["servers"] = json!([{
+        "url": ".",
+        "description": "this server: the directory this document is served from"
+    }]);
     assert_eq!(served, expected);
 }
 
@@ -776,6 +781,23 @@ async fn docs_and_spec_are_served() {
     assert_eq!(page.join(url).unwrap().path(), "/openapi.json");
     let behind_proxy = reqwest::Url::parse("https://example.org/ilqr/docs/").unwrap();
     assert_eq!(behind_proxy.join(url).unwrap().path(), "/ilqr/openapi.json");
+    // "Try it out" posts to the spec's server, which also stays under the
+    // prefix (it was the host's root, OpenAPI's default).
+    let server = spec["servers"][0]["url"].as_str().unwrap();
+    let spec_url = reqwest::Url::parse("https://example.org/ilqr/openapi.json").unwrap();
+    assert_eq!(spec_url.join(server).unwrap().path(), "/ilqr/");
+    // So does the redirect from /docs, which error messages point to.
+    let no_follow = reqwest::Client::builder()
+        .redirect(reqwest::redirect::Policy::none())
+        .build()
+        .unwrap();
+    let redirect = no_follow.get(s.url("/docs")).send().await.unwrap();
+    assert!(redirect.status().is_redirection(), "{}", redirect.status());
+    let location = redirect.headers()["location"].to_str().unwrap();
+    let docs = reqwest::Url::parse("https://example.org/ilqr/docs").unwrap();
+    assert_eq!(docs.join(location).unwrap().path(), "/ilqr/docs/");
+    let direct = reqwest::Url::parse(&s.url("/docs")).unwrap();
+    assert_eq!(direct.join(location).unwrap().path(), "/docs/");
     assert_eq!(s.get("/healthz").await.status(), 200);
     assert_eq!(s.get("/readyz").await.status(), 200);
 }

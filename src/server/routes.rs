@@ -112,7 +112,7 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
 /// The spec as this server serves it: the limits its configuration sets
 /// (`--max-horizon`, `--max-time-limit-ms`, `--default-time-limit-ms`) in
 /// place of the code's, so that a client validating against the served
-/// spec gets this server's bounds. The committed `openapi/openapi.json` and
+/// spec gets this server's bounds, and a relative `servers` entry. The committed `openapi/openapi.json` and
 /// `ilqr-service openapi` keep the code's (no time limit maximum, as for
 /// the CLI).
 fn with_limits(
@@ -150,6 +150,20 @@ fn with_limits(
                 *ms = default_ms.into();
             }
         }
+        // Without `servers`, OpenAPI's default is `/`, the host's root:
+        // Swagger UI's "Try it out" behind a proxy that adds a path prefix
+        // then posts to `host/solve`, outside the prefix. `.` is relative
+        // to where this document is served, prefix included. (The
+        // committed file, which is not served from anywhere, has none.)
+        if let Some(doc) = doc.as_object_mut() {
+            doc.insert(
+                "servers".into(),
+                serde_json::json!([{
+                    "url": ".",
+                    "description": "this server: the directory this document is served from"
+                }]),
+            );
+        }
         serde_json::from_value(doc).unwrap_or(spec)
     }
 }
@@ -178,7 +192,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                     .url("/openapi.json", spec)
                     .config(utoipa_swagger_ui::Config::new(["../openapi.json"])),
             )
-            .layer(axum::middleware::map_response(docs_not_found)),
+            .layer(axum::middleware::map_response(docs_fixes)),
         )
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
@@ -661,14 +675,24 @@ async fn not_found() -> ApiError {
     ApiError::NotFound
 }
 
-/// Swagger UI's `/docs/{*rest}` route answers an unknown file with an empty
-/// 404 of its own, before the router's fallback can; make it ours.
-async fn docs_not_found(res: Response) -> Response {
+/// Two fixes to Swagger UI's routes. Its `/docs/{*rest}` route answers an
+/// unknown file with an empty 404 of its own, before the router's fallback
+/// can; make it ours. And its `/docs` redirect says `Location: /docs/`,
+/// which behind a proxy that adds a path prefix leads out of it
+/// (`/ilqr/docs` → `/docs/`); `docs/` is the same place relative to
+/// `/docs`, and stays under any prefix.
+async fn docs_fixes(res: Response) -> Response {
     if res.status() == StatusCode::NOT_FOUND {
-        ApiError::NotFound.into_response()
-    } else {
-        res
+        return ApiError::NotFound.into_response();
     }
+    let mut res = res;
+    if res.status().is_redirection()
+        && res.headers().get(header::LOCATION) == Some(&HeaderValue::from_static("/docs/"))
+    {
+        res.headers_mut()
+            .insert(header::LOCATION, HeaderValue::from_static("docs/"));
+    }
+    res
 }
 
 async fn method_not_allowed() -> ApiError {
