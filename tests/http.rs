@@ -578,8 +578,14 @@ async fn the_time_budget_returns_the_best_trajectory_so_far() {
     let t = Instant::now();
     let res = s.post(&slow(200)).await;
     assert_eq!(res.status(), 200);
+    let timing = server_timing(&res);
     let r: Value = res.json().await.unwrap();
     assert_eq!(r["status"], "time_limit");
+    // Server-Timing repeats the body's times and adds what the budget does
+    // not cover: serialising the 10001 states (and gains and trace).
+    assert_eq!(timing["queue"], r["queue_time_ms"].as_f64().unwrap());
+    assert_eq!(timing["solve"], r["solve_time_ms"].as_f64().unwrap());
+    assert!(timing["encode"] > 0.0, "{timing:?}");
     assert!(r["cost"].as_f64().unwrap() <= r["initial_cost"].as_f64().unwrap());
     assert_eq!(r["states"].as_array().unwrap().len(), 10001);
     assert!(t.elapsed() < Duration::from_secs(3), "{:?}", t.elapsed());
@@ -598,6 +604,25 @@ async fn the_time_budget_returns_the_best_trajectory_so_far() {
     let r: Value = s.post(&body).await.json().await.unwrap();
     assert_eq!(r["status"], "time_limit");
     assert!(r["solve_time_ms"].as_f64().unwrap() < 1000.0);
+}
+
+/// `Server-Timing: queue;dur=A, solve;dur=B, encode;dur=C` as a map.
+fn server_timing(res: &reqwest::Response) -> std::collections::HashMap<String, f64> {
+    let value = res
+        .headers()
+        .get("server-timing")
+        .expect("no Server-Timing header")
+        .to_str()
+        .unwrap();
+    value
+        .split(", ")
+        .map(|metric| {
+            let (name, dur) = metric
+                .split_once(";dur=")
+                .unwrap_or_else(|| panic!("{value}"));
+            (name.to_owned(), dur.parse().unwrap())
+        })
+        .collect()
 }
 
 #[tokio::test]

@@ -342,7 +342,8 @@ fn is_json(headers: &HeaderMap) -> bool {
     tag = "solve",
     request_body(content = ProblemSpec, content_type = "application/json"),
     responses(
-        (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult),
+        (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult,
+            headers(("Server-Timing" = String, description = "Milliseconds spent queued, solving, and serialising plus compressing the answer (not covered by the time budget), e.g. `queue;dur=0.02, solve;dur=0.35, encode;dur=0.61`"))),
         (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, connection lost)", body = Problem, content_type = "application/problem+json"),
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),
@@ -402,7 +403,21 @@ async fn solve(
             }
             // Serialised and compressed here too: a long horizon's result
             // is megabytes of JSON, CPU work the async runtime should not do.
-            out.map(|r| r.to_json().map(|json| encode(json, gzip)))
+            // It comes after the budget (tens of ms at N = 10000, see
+            // README "Limits"); Server-Timing reports it.
+            out.map(|r| {
+                let started = std::time::Instant::now();
+                r.to_json().map(|json| {
+                    let body = encode(json, gzip);
+                    let timing = format!(
+                        "queue;dur={}, solve;dur={}, encode;dur={}",
+                        r.queue_time_ms,
+                        r.solve_time_ms,
+                        crate::solve::millis(started.elapsed())
+                    );
+                    (body, timing)
+                })
+            })
         })
         .map_err(|_| {
             reject(ApiError::Overloaded {
@@ -420,7 +435,7 @@ async fn solve(
     })?;
     ::metrics::histogram!("solve_queue_wait_seconds").record(done.queued.as_secs_f64());
     match done.outcome {
-        Ok(Ok(Ok(body))) => {
+        Ok(Ok(Ok((body, timing)))) => {
             let mut res = (
                 [
                     (
@@ -435,6 +450,10 @@ async fn solve(
             if body.gzip {
                 res.headers_mut()
                     .insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
+            }
+            // Digits, letters and punctuation only: always a valid value.
+            if let Ok(timing) = HeaderValue::from_str(&timing) {
+                res.headers_mut().insert("server-timing", timing);
             }
             Ok(res)
         }
