@@ -356,3 +356,60 @@ fn the_checks_catch_an_unfinished_solve_and_negative_curvature() {
         local.softest_curvature
     );
 }
+
+/// Where the rollout of `us` crosses the obstacle's height: its x there.
+fn x_beside_the_obstacle(p: &Seed, us: &[Vector2<f64>]) -> f64 {
+    let mut x = p.x0;
+    for u in us {
+        let next = p.dynamics.step(&x, u);
+        if (x[1] - common::OBSTACLE[1]) * (next[1] - common::OBSTACLE[1]) <= 0.0 {
+            return x[0];
+        }
+        x = next;
+    }
+    panic!("the path never reaches the obstacle's height");
+}
+
+/// The seed's 5520.212 (the reference solvers' answer, from hover) is a
+/// local minimum west of the obstacle, not the only one: pushed east by a
+/// second obstacle, then released, the solve settles on a cheaper minimum
+/// east of it. Both pass the first- and second-order checks.
+#[test]
+fn the_seed_has_a_cheaper_local_minimum_east_of_the_obstacle() {
+    let seed = seed_problem(100, 0.05);
+    let mut pushed = seed_problem(100, 0.05);
+    pushed.cost = pushed.cost.with_stage(ExpObstacle {
+        center: Vector2::new(2.0, 5.0),
+        weight: 3000.0,
+        position: (0, 1),
+    });
+    let (detour, _) = solve(&pushed, &Options::default());
+    let mut solver = Solver::new(seed.horizon);
+    let summary = solver
+        .solve(&seed, &detour, &Options::default(), &AtomicBool::new(false))
+        .expect("valid problem");
+    assert_eq!(summary.status, Status::Converged);
+    assert_eq!(summary.convexified_after, None);
+    let east = solver.controls().to_vec();
+    let (west, _) = solve(&seed, &Options::default());
+
+    let (j_east, j_west) = (total_cost(&seed, &east), total_cost(&seed, &west));
+    assert!((j_west - common::SEED_OPTIMUM).abs() < 1e-3, "{j_west}");
+    assert!((j_east - 5418.304).abs() < 1e-3, "{j_east}");
+    assert!(x_beside_the_obstacle(&seed, &west) < common::OBSTACLE[0] - 2.0);
+    assert!(x_beside_the_obstacle(&seed, &east) > common::OBSTACLE[0] + 2.0);
+    for (side, us) in [("west", &west), ("east", &east)] {
+        let local = examine(&seed, us);
+        assert!(
+            local.newton_gain <= STATIONARY && local.predicted_gain <= STATIONARY,
+            "{side}: a Newton step gains {:e}",
+            local.newton_gain
+        );
+        assert!(
+            local.lambda_min > 0.0 && local.softest_curvature > 0.0,
+            "{side}: λ_min {:e}, curvature {:e}",
+            local.lambda_min,
+            local.softest_curvature
+        );
+    }
+}
