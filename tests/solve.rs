@@ -630,3 +630,201 @@ fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
         "{text}"
     );
 }
+
+/// Feedback gains (N × 2 × 6, row-major) and the states they are about.
+type Policy<'a> = (&'a [[[f64; 6]; 2]], &'a [[f64; 6]]);
+
+/// Rolls `controls` out from `x0` under the seed's model and `dt`, with
+/// feedback `u = ū_k + K_k·(x − x̄_k)` when `policy` gives `(K, x̄)`
+/// (`feedback` read row-major: row i is rotor i's gains over the 6 states).
+fn fly(
+    x0: [f64; 6],
+    dt: f64,
+    controls: &[[f64; 2]],
+    policy: Option<Policy<'_>>,
+) -> (Vec<[f64; 2]>, [f64; 6]) {
+    use ilqr::{DiscreteDynamics, Euler, Quadrotor2D};
+    use nalgebra::{SVector, Vector2};
+    let dynamics = Euler {
+        model: Quadrotor2D {
+            mass: 1.0,
+            inertia: 1.0,
+            arm_length: 1.0,
+            gravity: 9.81,
+        },
+        dt,
+    };
+    let mut x = SVector::<f64, 6>::from(x0);
+    let mut flown = Vec::with_capacity(controls.len());
+    for (k, u_bar) in controls.iter().enumerate() {
+        let mut u = *u_bar;
+        if let Some((feedback, states)) = policy {
+            for (i, ui) in u.iter_mut().enumerate() {
+                *ui += (0..6)
+                    .map(|j| feedback[k][i][j] * (x[j] - states[k][j]))
+                    .sum::<f64>();
+            }
+        }
+        x = dynamics.step(&x, &Vector2::from(u));
+        flown.push(u);
+    }
+    (flown, x.into())
+}
+
+/// The wire's `gains` are the solver's policy, in the documented layout:
+/// from a start 0.3 m off, feedback with the wire `feedback` ends far
+/// nearer the goal than the open-loop controls (a transposed or rotor-
+/// swapped `feedback` does not); and a small step along `feedforward`,
+/// with that feedback, lowers the cost of an unfinished solve (a sign
+/// error raises it).
+#[test]
+fn the_wire_gains_are_the_policy() {
+    let cancel = AtomicBool::new(false);
+    let r = solve(&spec(json!({})), None, &cancel).unwrap();
+    let gains = r.gains.as_ref().unwrap();
+    let goal = [4.0, 9.0];
+    let miss = |x: [f64; 6]| (x[0] - goal[0]).hypot(x[1] - goal[1]);
+    let start = [5.3, -0.2, 0.0, 0.0, 0.0, 0.0];
+    let (_, open) = fly(start, 0.05, &r.controls, None);
+    let (_, closed) = fly(start, 0.05, &r.controls, Some((&gains.feedback, &r.states)));
+    assert!(
+        miss(closed) < 0.5 * miss(open),
+        "closed loop misses by {}, open loop by {}",
+        miss(closed),
+        miss(open)
+    );
+
+    let one = solve(
+        &spec(json!({"solver": {"max_iterations": 1}})),
+        None,
+        &cancel,
+    )
+    .unwrap();
+    let gains = one.gains.as_ref().unwrap();
+    assert!(!gains.about_previous_iterate);
+    let nudged: Vec<[f64; 2]> = one
+        .controls
+        .iter()
+        .zip(&gains.feedforward)
+        .map(|(u, d)| [u[0] + 1e-3 * d[0], u[1] + 1e-3 * d[1]])
+        .collect();
+    let (flown, _) = fly(
+        [5.0, 0.0, 0.0, 0.0, 0.0, 0.0],
+        0.05,
+        &nudged,
+        Some((&gains.feedback, &one.states)),
+    );
+    let scored = solve(
+        &spec(json!({"initial_controls": flown, "solver": {"max_iterations": 0}})),
+        None,
+        &cancel,
+    )
+    .unwrap();
+    assert!(
+        scored.initial_cost < one.cost,
+        "a step along feedforward: {} from {}",
+        scored.initial_cost,
+        one.cost
+    );
+}
+
+/// Each wire trace row says what that iteration did: numbered from 1, its
+/// cost the previous one less `actual_reduction`, a step size from the
+/// line search's grid (0 when none was taken), and a taken step's gain
+/// positive and at least the acceptance ratio (1e-4) of the model's.
+#[test]
+fn the_wire_trace_rows_add_up() {
+    let cancel = AtomicBool::new(false);
+    for doc in [
+        json!({}),
+        json!({"obstacles": [{"center": [4.5, 4.5], "weight": 1000}, {"center": [3, 6], "weight": 300}]}),
+    ] {
+        let r = solve(&spec(doc), None, &cancel).unwrap();
+        let trace = r.trace.as_ref().unwrap();
+        assert_eq!(trace.len(), r.iterations);
+        let grid: Vec<f64> = (0..11).map(|i| 10f64.powf(-0.3 * f64::from(i))).collect();
+        let mut previous = r.initial_cost;
+        let mut taken = 0;
+        for (i, row) in trace.iter().enumerate() {
+            assert_eq!(row.iteration, i + 1);
+            let expected_cost = previous - row.actual_reduction;
+            assert!(
+                (row.cost - expected_cost).abs() <= 1e-9 * previous,
+                "row {i}: {row:?} after {previous}"
+            );
+            if row.step_size == 0.0 {
+                assert_eq!(row.actual_reduction, 0.0, "row {i}: {row:?}");
+            } else {
+                taken += 1;
+                assert!(grid.contains(&row.step_size), "row {i}: {row:?}");
+                assert!(row.actual_reduction > 0.0, "row {i}: {row:?}");
+                assert!(
+                    row.actual_reduction >= 1e-4 * row.expected_reduction,
+                    "row {i}: {row:?}"
+                );
+            }
+            assert!(row.regularization >= 0.0);
+            previous = row.cost;
+        }
+        assert!(taken > 5, "{taken} steps taken");
+        assert_eq!(previous, r.cost);
+    }
+}
+
+/// Every weight and obstacle of the request reaches the cost the solver
+/// minimises: with unequal diagonals and obstacles off the diagonal, the
+/// cost recomputed from the answer's states and controls (eqs. 13–15) is
+/// the answer's `cost` (a weight or an axis wired wrong is not).
+#[test]
+fn the_reported_cost_is_the_requested_cost_of_the_returned_trajectory() {
+    let q = [1.0, 2.0, 0.5, 0.3, 0.7, 0.2];
+    let r_w = [0.1, 0.4];
+    let qf = [5e4, 3e4, 1e3, 2e3, 4e3, 6e3];
+    let goal = [4.0, 9.0, 0.0, 0.0, 0.0, 0.0];
+    let obstacles = [([3.0, 6.0], 300.0), ([6.0, 2.0], 800.0)];
+    let doc = json!({
+        "weights": {"state": q, "control": r_w, "terminal": qf},
+        "obstacles": obstacles
+            .iter()
+            .map(|(c, w)| json!({"center": c, "weight": w}))
+            .collect::<Vec<_>>(),
+        "solver": {"max_iterations": 5},
+    });
+    let r = solve(&spec(doc), None, &AtomicBool::new(false)).unwrap();
+    let tracking = |x: &[f64; 6], w: &[f64; 6]| -> f64 {
+        (0..6).map(|i| w[i] * (x[i] - goal[i]).powi(2)).sum()
+    };
+    let mut cost = 0.0;
+    for (x, u) in r.states.iter().zip(&r.controls) {
+        cost += tracking(x, &q) + r_w[0] * u[0] * u[0] + r_w[1] * u[1] * u[1];
+        for (c, w) in &obstacles {
+            cost += w * (-(x[0] - c[0]).hypot(x[1] - c[1])).exp();
+        }
+    }
+    cost += tracking(&r.states[r.states.len() - 1], &qf);
+    assert!(
+        (cost - r.cost).abs() <= 1e-9 * r.cost,
+        "recomputed {cost}, reported {}",
+        r.cost
+    );
+}
+
+/// `closest_approach` is the distance to the segment between two states,
+/// not to its extension: flying from x = 0 to x = 1 in one step, an
+/// obstacle at x = 3 is 2 m away at the segment's end (1 m along the
+/// extension).
+#[test]
+fn closest_approach_stops_at_the_segment_end() {
+    let doc = json!({
+        "initial_state": [0, 0, 0, 1, 0, 0],
+        "dt": 1,
+        "horizon": 1,
+        "model": {"gravity": 0},
+        "initial_controls": [[0, 0]],
+        "obstacles": [{"center": [3, 0], "weight": 0}],
+        "solver": {"max_iterations": 0},
+    });
+    let r = solve(&spec(doc), None, &AtomicBool::new(false)).unwrap();
+    assert_eq!(r.states[1][0], 1.0);
+    assert_eq!(r.closest_approach, vec![2.0]);
+}

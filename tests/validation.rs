@@ -324,6 +324,9 @@ fn wrong_types_and_unknown_fields_are_rejected() {
         "/solver/tolerance",
     );
     rejects(json!({"solver": {"tolerance": 1.5}}), "/solver/tolerance");
+    // Below 1 exclusive: a relative change of 1 is every step.
+    rejects(json!({"solver": {"tolerance": 1}}), "/solver/tolerance");
+    assert!(errors(&json!({"solver": {"tolerance": 0.999}})).is_empty());
     rejects(
         json!({"solver": {"max_iterations": 1_000_000}}),
         "/solver/max_iterations",

@@ -477,6 +477,8 @@ fn an_optimum_reached_to_round_off_is_converged_not_no_progress() {
             .all(|k| k.iter().all(|v| v.is_finite()))
     );
     assert!(solver.feedback().iter().any(|k| k.norm() > 0.0));
+    // Built at μ = 0, the pass that confirmed the optimum, and said so.
+    assert_eq!(s.gains_regularization, 0.0, "{s:?}");
 }
 
 /// The same check must not call a maximum converged: start and goal on the
@@ -691,4 +693,37 @@ fn gains_about_the_previous_iterate_are_flagged() {
     let (capped_solver, c) = solve_problem(&problem, &capped);
     assert_eq!(capped_solver.controls(), solver.controls());
     assert!(c.has_gains && !c.gains_about_previous_iterate, "{c:?}");
+}
+
+/// The expected reduction is the model's for the step size taken,
+/// `α·ΔV₁ + α²·ΔV₂`, and the trace records that α: on a nearly linear
+/// problem (hover, a goal 5 cm up) with only α = 0.5 on offer and no
+/// regularisation, every step is recorded at 0.5 and the actual reduction
+/// matches the expected one to a few percent (with `α·ΔV₂` it is 1.5 times
+/// off).
+#[test]
+fn the_expected_reduction_is_the_models_at_the_step_taken() {
+    let mut problem = seed_problem(50, 0.05);
+    let start = problem.x0;
+    let mut goal = start;
+    goal[1] += 0.05;
+    problem.cost = tracking(goal, 1.0, 0.1, 100.0);
+    let options = Options {
+        step_sizes: vec![0.5],
+        mu_init: 0.0,
+        max_iterations: 5,
+        ..Options::default()
+    };
+    let (solver, s) = solve_problem(&problem, &options);
+    let taken: Vec<_> = solver
+        .trace()
+        .iter()
+        .filter(|r| r.step_size > 0.0)
+        .collect();
+    assert!(taken.len() >= 3, "{s:?}: {:?}", solver.trace());
+    for row in taken {
+        assert_eq!(row.step_size, 0.5, "{row:?}");
+        let ratio = row.actual_reduction / row.expected_reduction;
+        assert!((ratio - 1.0).abs() < 0.05, "ratio {ratio}: {row:?}");
+    }
 }
