@@ -727,3 +727,113 @@ fn the_expected_reduction_is_the_models_at_the_step_taken() {
         assert!((ratio - 1.0).abs() < 0.05, "ratio {ratio}: {row:?}");
     }
 }
+
+/// The trace's `feedforward_norm` is the documented mean over knots of
+/// `max_i |d_i| / (|ū_i| + 1)`: iteration 1's row, from the first pass
+/// about the hover guess, matches it recomputed from that pass's `d`
+/// (which a solve with `max_iterations: 0` returns).
+#[test]
+fn the_feedforward_norm_is_the_documented_mean() {
+    let problem = seed_problem(100, 0.05);
+    let (first_pass, _) = solve_problem(
+        &problem,
+        &Options {
+            max_iterations: 0,
+            ..Options::default()
+        },
+    );
+    let guess = hover(problem.horizon);
+    let mean = first_pass
+        .feedforward()
+        .iter()
+        .zip(&guess)
+        .map(|(d, u)| {
+            (0..2)
+                .map(|i| d[i].abs() / (u[i].abs() + 1.0))
+                .fold(0.0, f64::max)
+        })
+        .sum::<f64>()
+        / problem.horizon as f64;
+    let (solver, _) = solve_problem(&problem, &Options::default());
+    let row = solver.trace()[0];
+    assert!(mean > 0.0);
+    assert!(
+        (row.feedforward_norm - mean).abs() <= 1e-12 * mean,
+        "trace says {}, recomputed {mean}",
+        row.feedforward_norm
+    );
+}
+
+/// `x ← x + u`, except that a thrust above 5 breaks the model (NaN): the
+/// line search must reject such steps even where the cost would not see
+/// the NaN (the terminal cost below ignores the state).
+struct BreaksAboveFive;
+
+impl DiscreteDynamics<1, 1> for BreaksAboveFive {
+    fn step(&self, x: &SVector<f64, 1>, u: &SVector<f64, 1>) -> SVector<f64, 1> {
+        if u[0] > 5.0 {
+            SVector::from([f64::NAN])
+        } else {
+            x + u
+        }
+    }
+    fn linearize(
+        &self,
+        _x: &SVector<f64, 1>,
+        _u: &SVector<f64, 1>,
+    ) -> (nalgebra::SMatrix<f64, 1, 1>, nalgebra::SMatrix<f64, 1, 1>) {
+        (nalgebra::SMatrix::identity(), nalgebra::SMatrix::identity())
+    }
+}
+
+/// `(u − 10)²` at every stage, nothing at the end.
+struct WantsTen;
+
+impl Cost<1, 1> for WantsTen {
+    fn stage(&self, _k: usize, _x: &SVector<f64, 1>, u: &SVector<f64, 1>) -> f64 {
+        (u[0] - 10.0).powi(2)
+    }
+    fn stage_expand(
+        &self,
+        _k: usize,
+        _x: &SVector<f64, 1>,
+        u: &SVector<f64, 1>,
+        e: &mut ilqr::StageExpansion<1, 1>,
+    ) {
+        e.l_u[0] += 2.0 * (u[0] - 10.0);
+        e.l_uu[(0, 0)] += 2.0;
+    }
+    fn terminal(&self, _x: &SVector<f64, 1>) -> f64 {
+        0.0
+    }
+    fn terminal_expand(&self, _x: &SVector<f64, 1>, _e: &mut ilqr::TerminalExpansion<1>) {}
+}
+
+/// A step whose rollout leaves the model's domain is rejected even when
+/// the cost stays finite: every returned state is finite, and the thrust
+/// stops at the edge of the domain instead of crossing it.
+#[test]
+fn a_rollout_with_a_non_finite_state_is_rejected_even_at_finite_cost() {
+    let problem = ilqr::Problem {
+        dynamics: BreaksAboveFive,
+        cost: WantsTen,
+        x0: SVector::from([0.0]),
+        horizon: 1,
+    };
+    let mut solver = Solver::<1, 1>::new(1);
+    let s = solver
+        .solve(
+            &problem,
+            &[SVector::from([0.0])],
+            &Options::default(),
+            &AtomicBool::new(false),
+        )
+        .expect("valid problem");
+    assert!(
+        solver.states().iter().all(|x| x[0].is_finite()),
+        "{s:?}: {:?}",
+        solver.states()
+    );
+    let u = solver.controls()[0][0];
+    assert!(u > 2.0 && u <= 5.0, "{s:?}: u = {u}");
+}
