@@ -251,6 +251,22 @@ pub fn solve(
     result
 }
 
+/// The solver's gains in the wire's layout (`feedback` row-major: row i is
+/// rotor i's gains over the six states), with what the summary says of
+/// them.
+fn wire_gains(solver: &Solver<6, 2>, summary: &ilqr::Summary) -> Gains {
+    Gains {
+        feedback: solver
+            .feedback()
+            .iter()
+            .map(|k| [k.row(0).transpose().into(), k.row(1).transpose().into()])
+            .collect(),
+        feedforward: solver.feedforward().iter().map(|d| (*d).into()).collect(),
+        regularization: summary.gains_regularization,
+        about_previous_iterate: summary.gains_about_previous_iterate,
+    }
+}
+
 /// Run `solver` on the built problem and convert what it found.
 fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
     solver: &mut Solver<6, 2>,
@@ -275,16 +291,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         .collect();
     // Zero gains from a solve whose first backward pass never completed
     // would read as a valid (open-loop) policy; leave them out instead.
-    let gains = (spec.output.gains && summary.has_gains).then(|| Gains {
-        feedback: solver
-            .feedback()
-            .iter()
-            .map(|k| [k.row(0).transpose().into(), k.row(1).transpose().into()])
-            .collect(),
-        feedforward: solver.feedforward().iter().map(|d| (*d).into()).collect(),
-        regularization: summary.gains_regularization,
-        about_previous_iterate: summary.gains_about_previous_iterate,
-    });
+    let gains = (spec.output.gains && summary.has_gains).then(|| wire_gains(solver, &summary));
     let trace = spec.output.trace.then(|| {
         solver
             .trace()
@@ -431,6 +438,67 @@ mod tests {
         assert_ne!(
             (Duration::from_nanos(43_688_900).as_secs_f64() * 1e3).to_string(),
             "43.6889"
+        );
+    }
+
+    /// The wire gains carry the summary's word on them (a gain about the
+    /// previous iterate cannot be produced on demand through a solve: it
+    /// needs a budget to run out at one exact point) and the solver's
+    /// `K` in row-major order.
+    #[test]
+    fn wire_gains_pass_on_what_the_summary_says_and_k_row_major() {
+        let model = Quadrotor2D {
+            mass: 1.0,
+            inertia: 1.0,
+            arm_length: 1.0,
+            gravity: 9.81,
+        };
+        let goal = SVector::from([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
+        let problem = Problem {
+            dynamics: Euler { model, dt: 0.05 },
+            cost: Objective::new()
+                .with_stage(StateTracking {
+                    goal,
+                    weights: SVector::repeat(1.0),
+                })
+                .with_stage(ControlEffort {
+                    weights: Vector2::repeat(0.1),
+                })
+                .with_terminal(TerminalTracking {
+                    goal,
+                    weights: SVector::repeat(100.0),
+                }),
+            x0: SVector::zeros(),
+            horizon: 10,
+        };
+        let mut solver = Solver::<6, 2>::new(10);
+        let mut summary = solver
+            .solve(
+                &problem,
+                &[Vector2::repeat(model.hover_thrust()); 10],
+                &Options::default(),
+                &AtomicBool::new(false),
+            )
+            .unwrap();
+        for flag in [false, true] {
+            summary.gains_about_previous_iterate = flag;
+            summary.gains_regularization = 0.25;
+            let gains = wire_gains(&solver, &summary);
+            assert_eq!(gains.about_previous_iterate, flag);
+            assert_eq!(gains.regularization, 0.25);
+            for (k, (wire, core)) in gains.feedback.iter().zip(solver.feedback()).enumerate() {
+                for (i, j) in (0..2).flat_map(|i| (0..6).map(move |j| (i, j))) {
+                    assert_eq!(wire[i][j], core[(i, j)], "K_{k}[{i}][{j}]");
+                }
+            }
+        }
+        // The rotors' rows differ (they turn the body opposite ways), so a
+        // swap of the rows would be seen.
+        assert!(
+            solver
+                .feedback()
+                .iter()
+                .any(|k| (k[(0, 2)] - k[(1, 2)]).abs() > 1e-3)
         );
     }
 }
