@@ -201,8 +201,9 @@ pub struct SolverSpec {
     /// ms at N = 10000 with 100 obstacles, under 1 ms with one (measured).
     /// Serialising and compressing the answer come after the budget (about
     /// 9 ms, or 80 ms gzipped, for a whole answer at N = 10000; the
-    /// `Server-Timing` header reports it). At most the service's maximum (60000 unless configured). Unset: the
-    /// service's default (10000 unless configured; the CLI has none).
+    /// `Server-Timing` header reports it). At most the service's maximum
+    /// (60000 unless configured). Unset: the service's default (10000
+    /// unless configured; the CLI has none).
     #[serde(deserialize_with = "de_millis")]
     #[schema(minimum = 1)]
     pub time_limit_ms: Option<u64>,

@@ -191,6 +191,37 @@ pub fn solve(
     time_limit: Option<Duration>,
     cancel: &AtomicBool,
 ) -> Result<SolveResult, Unsolvable> {
+    let (problem, u_init) = build(spec);
+    let options = Options {
+        max_iterations: spec.solver.max_iterations,
+        tolerance: spec.solver.tolerance,
+        time_limit,
+        // Every term is non-negative (validation keeps weights ≥ 0), so a
+        // cost of 0 is a global optimum.
+        cost_lower_bound: Some(0.0),
+        ..Options::default()
+    };
+
+    let cacheable = spec.horizon <= CACHED_HORIZON;
+    let mut solver = cacheable
+        .then(|| CACHED_SOLVER.take())
+        .flatten()
+        .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
+    let result = solve_on(&mut solver, spec, &problem, &u_init, &options, cancel);
+    if cacheable {
+        CACHED_SOLVER.set(Some(solver));
+    }
+    result
+}
+
+/// The problem `spec` describes, in the solver's types, and its
+/// initial controls (hover thrust unless given).
+fn build(
+    spec: &ProblemSpec,
+) -> (
+    Problem<Euler<Quadrotor2D>, Objective<6, 2>, 6>,
+    Vec<Vector2<f64>>,
+) {
     let ModelKind::Quadrotor2d = spec.model.kind;
     let Integrator::Euler = spec.integrator;
     let model = Quadrotor2D {
@@ -229,26 +260,7 @@ pub fn solve(
         Some(us) => us.iter().map(|u| Vector2::from(*u)).collect(),
         None => vec![Vector2::repeat(model.hover_thrust()); spec.horizon],
     };
-    let options = Options {
-        max_iterations: spec.solver.max_iterations,
-        tolerance: spec.solver.tolerance,
-        time_limit,
-        // Every term is non-negative (validation keeps weights ≥ 0), so a
-        // cost of 0 is a global optimum.
-        cost_lower_bound: Some(0.0),
-        ..Options::default()
-    };
-
-    let cacheable = spec.horizon <= CACHED_HORIZON;
-    let mut solver = cacheable
-        .then(|| CACHED_SOLVER.take())
-        .flatten()
-        .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
-    let result = solve_on(&mut solver, spec, &problem, &u_init, &options, cancel);
-    if cacheable {
-        CACHED_SOLVER.set(Some(solver));
-    }
-    result
+    (problem, u_init)
 }
 
 /// The solver's gains in the wire's layout (`feedback` row-major: row i is
@@ -447,35 +459,13 @@ mod tests {
     /// `K` in row-major order.
     #[test]
     fn wire_gains_pass_on_what_the_summary_says_and_k_row_major() {
-        let model = Quadrotor2D {
-            mass: 1.0,
-            inertia: 1.0,
-            arm_length: 1.0,
-            gravity: 9.81,
-        };
-        let goal = SVector::from([0.0, 1.0, 0.0, 0.0, 0.0, 0.0]);
-        let problem = Problem {
-            dynamics: Euler { model, dt: 0.05 },
-            cost: Objective::new()
-                .with_stage(StateTracking {
-                    goal,
-                    weights: SVector::repeat(1.0),
-                })
-                .with_stage(ControlEffort {
-                    weights: Vector2::repeat(0.1),
-                })
-                .with_terminal(TerminalTracking {
-                    goal,
-                    weights: SVector::repeat(100.0),
-                }),
-            x0: SVector::zeros(),
-            horizon: 10,
-        };
-        let mut solver = Solver::<6, 2>::new(10);
+        // The seed problem, as a request of `{}` builds it.
+        let (problem, u_init) = build(&ProblemSpec::default());
+        let mut solver = Solver::<6, 2>::new(problem.horizon);
         let mut summary = solver
             .solve(
                 &problem,
-                &[Vector2::repeat(model.hover_thrust()); 10],
+                &u_init,
                 &Options::default(),
                 &AtomicBool::new(false),
             )

@@ -131,9 +131,8 @@ pub struct Config {
     /// body. A connection that stalls longer is closed (headers) or answered
     /// 408 (body), so slow or stuck clients cannot pile up connections or
     /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.12 Mbit/s.
-    /// 1 to 3600.
-    #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
-          value_parser = clap::value_parser!(u64).range(1..))]
+    /// 1 to 3600 (checked with the other ranges in `Config::check`).
+    #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30)]
     pub read_timeout_secs: u64,
     /// gzip level of answers to clients that accept gzip: 1 (fastest) to 9
     /// (smallest), 0 to send every answer uncompressed. The seed answer
@@ -564,23 +563,18 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         .enable_all()
         .build()?;
     runtime.block_on(async move {
-        let (bind, workers, runtime_threads, queue_capacity) = (
-            config.bind,
-            config.workers(),
-            config.runtime_threads(),
-            config.queue_capacity,
-        );
         // The state (its checks, the worker threads) before the socket, so
         // that "listening" is logged only by a server that can serve.
         let state = AppState::new(config)?;
-        let listener = TcpListener::bind(bind)
-            .await
-            .map_err(|e| std::io::Error::new(e.kind(), format!("cannot listen on {bind}: {e}")))?;
+        let config = &state.config;
+        let listener = TcpListener::bind(config.bind).await.map_err(|e| {
+            std::io::Error::new(e.kind(), format!("cannot listen on {}: {e}", config.bind))
+        })?;
         tracing::info!(
             addr = %listener.local_addr()?,
-            workers,
-            runtime_threads,
-            queue_capacity,
+            workers = config.workers(),
+            runtime_threads = config.runtime_threads(),
+            queue_capacity = config.queue_capacity,
             "listening"
         );
         run(listener, state, shutdown_signal()).await

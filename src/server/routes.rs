@@ -112,9 +112,9 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
 /// The spec as this server serves it: the limits its configuration sets
 /// (`--max-horizon`, `--max-time-limit-ms`, `--default-time-limit-ms`) in
 /// place of the code's, so that a client validating against the served
-/// spec gets this server's bounds, and a relative `servers` entry. The committed `openapi/openapi.json` and
-/// `ilqr-service openapi` keep the code's (no time limit maximum, as for
-/// the CLI).
+/// spec gets this server's bounds, and a relative `servers` entry. The
+/// committed `openapi/openapi.json` and `ilqr-service openapi` keep the
+/// code's (no time limit maximum, as for the CLI).
 fn with_limits(
     config: &super::Config,
 ) -> impl FnOnce(utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi + use<> {
