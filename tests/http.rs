@@ -784,7 +784,21 @@ async fn docs_and_spec_are_served() {
     assert!(spec["paths"]["/solve"]["post"].is_object());
     let docs = reqwest::get(s.url("/docs/")).await.unwrap();
     assert_eq!(docs.status(), 200);
-    assert!(docs.text().await.unwrap().contains("swagger"));
+    let page = docs.text().await.unwrap();
+    assert!(page.contains("swagger-ui-bundle.js"), "{page}");
+    // The browser tab names the service.
+    assert!(page.contains("<title>ilqr-service API</title>"), "{page}");
+    // Swagger UI shows summaries as plain text: one short sentence each,
+    // no Markdown code marks (those belong in the description).
+    for (path, item) in spec["paths"].as_object().unwrap() {
+        for (method, op) in item.as_object().unwrap() {
+            let summary = op["summary"].as_str().unwrap_or_default();
+            assert!(
+                !summary.is_empty() && summary.len() <= 60 && !summary.contains(['`', '\n']),
+                "{method} {path}: summary {summary:?}"
+            );
+        }
+    }
     // Swagger UI's own files are served, and an unknown one is our 404.
     assert_eq!(s.get("/docs/swagger-ui.css").await.status(), 200);
     problem_of(s.get("/docs/nope.js").await, StatusCode::NOT_FOUND).await;
@@ -804,6 +818,11 @@ async fn docs_and_spec_are_served() {
         .unwrap_or_else(|| panic!("no spec URL in {init}"));
     let page = reqwest::Url::parse(&s.url("/docs/")).unwrap();
     assert_eq!(page.join(url).unwrap().path(), "/openapi.json");
+    // No validator badge: Swagger UI's default would send the spec's URL to
+    // validator.swagger.io from any host name but localhost (a broken
+    // image offline; found in a headless-browser check, see
+    // tests/browser/docs_check.mjs).
+    assert!(init.contains("\"validatorUrl\": \"none\""), "{init}");
     let behind_proxy = reqwest::Url::parse("https://example.org/ilqr/docs/").unwrap();
     assert_eq!(behind_proxy.join(url).unwrap().path(), "/ilqr/openapi.json");
     // "Try it out" posts to the spec's server, which also stays under the

@@ -68,11 +68,18 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
     use utoipa::openapi::path::{HttpMethod, OperationBuilder};
     use utoipa::openapi::schema::{ObjectBuilder, Type};
     use utoipa::openapi::{Content, ResponseBuilder};
-    let get = |id: &str, summary: &str, content_type: &str, description: &str, schema: Type| {
+    // Swagger UI shows a summary as plain text (Markdown only in the
+    // description), so summaries are one short sentence without code marks.
+    let get = |id: &str,
+               [summary, details]: [&str; 2],
+               content_type: &str,
+               description: &str,
+               schema: Type| {
         OperationBuilder::new()
             .tag("operations")
             .operation_id(Some(id))
             .summary(Some(summary))
+            .description(Some(details))
             .response(
                 "200",
                 ResponseBuilder::new().description(description).content(
@@ -87,8 +94,11 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
         vec![HttpMethod::Get],
         get(
             "openapi_json",
-            "This OpenAPI 3.1 document, with this server's limits on `horizon` and \
-             `time_limit_ms` (`ilqr-service openapi` prints the code's)",
+            [
+                "This OpenAPI 3.1 document.",
+                "With this server's limits on `horizon` and `time_limit_ms` \
+                 (`ilqr-service openapi` prints the code's).",
+            ],
             "application/json",
             "The OpenAPI document",
             Type::Object,
@@ -99,8 +109,10 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
         vec![HttpMethod::Get],
         get(
             "docs",
-            "Swagger UI for this document, served from the binary (no internet needed); \
-             `/docs` redirects here",
+            [
+                "Swagger UI for this document.",
+                "Served from the binary (no internet needed); `/docs` redirects here.",
+            ],
             "text/html",
             "The Swagger UI page",
             Type::String,
@@ -188,9 +200,14 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
             // finds it behind a proxy that adds a path prefix
             // (/ilqr/docs/ → /ilqr/openapi.json).
             axum::Router::from(
-                SwaggerUi::new("/docs")
-                    .url("/openapi.json", spec)
-                    .config(utoipa_swagger_ui::Config::new(["../openapi.json"])),
+                SwaggerUi::new("/docs").url("/openapi.json", spec).config(
+                    utoipa_swagger_ui::Config::new(["../openapi.json"])
+                        // Swagger UI's default sends the spec's URL to
+                        // validator.swagger.io for a badge, from any
+                        // host but localhost: offline a broken image,
+                        // online a leak of an internal address.
+                        .validator_url("none"),
+                ),
             )
             .layer(axum::middleware::map_response(docs_fixes)),
         )
@@ -617,10 +634,12 @@ fn reject(e: ApiError) -> ApiError {
     e
 }
 
-/// The default problem (the seed scenario), every field expanded: fetch it,
-/// edit it, post it back. `solver.time_limit_ms` is this service's default
-/// budget; `initial_controls` is left out (its default, hover thrust, is N
-/// rows that would no longer fit once the horizon is edited).
+/// The default problem, every field expanded.
+///
+/// The seed scenario: fetch it, edit it, post it back. `solver.time_limit_ms` is this
+/// service's default budget; `initial_controls` is left out (its default,
+/// hover thrust, is N rows that would no longer fit once the horizon is
+/// edited).
 #[utoipa::path(
     get,
     path = "/problems/default",
@@ -651,8 +670,9 @@ async fn healthz() -> Json<Health> {
     Json(Health { status: "ok" })
 }
 
-/// Readiness: 200 while the service admits solves, 503 while it drains for
-/// shutdown.
+/// Readiness: 200 while the service admits solves.
+///
+/// 503 while it drains for shutdown.
 #[utoipa::path(
     get,
     path = "/readyz",
@@ -694,12 +714,13 @@ async fn not_found() -> ApiError {
     ApiError::NotFound
 }
 
-/// Two fixes to Swagger UI's routes. Its `/docs/{*rest}` route answers an
+/// Three fixes to Swagger UI's routes. Its `/docs/{*rest}` route answers an
 /// unknown file with an empty 404 of its own, before the router's fallback
-/// can; make it ours. And its `/docs` redirect says `Location: /docs/`,
+/// can; make it ours. Its `/docs` redirect says `Location: /docs/`,
 /// which behind a proxy that adds a path prefix leads out of it
 /// (`/ilqr/docs` → `/docs/`); `docs/` is the same place relative to
-/// `/docs`, and stays under any prefix.
+/// `/docs`, and stays under any prefix. And its page's title is "Swagger
+/// UI", which says nothing in a row of browser tabs.
 async fn docs_fixes(res: Response) -> Response {
     if res.status() == StatusCode::NOT_FOUND {
         return ApiError::NotFound.into_response();
@@ -710,6 +731,24 @@ async fn docs_fixes(res: Response) -> Response {
     {
         res.headers_mut()
             .insert(header::LOCATION, HeaderValue::from_static("docs/"));
+    }
+    let is_html = res
+        .headers()
+        .get(header::CONTENT_TYPE)
+        .is_some_and(|v| v.as_bytes().starts_with(b"text/html"));
+    if res.status() == StatusCode::OK && is_html {
+        // The page (about 1 KB) names the service in its tab, not "Swagger UI".
+        let (mut parts, body) = res.into_parts();
+        let Ok(page) = axum::body::to_bytes(body, 64 * 1024).await else {
+            return ApiError::Internal.into_response();
+        };
+        let page = String::from_utf8_lossy(&page).replacen(
+            "<title>Swagger UI</title>",
+            "<title>ilqr-service API</title>",
+            1,
+        );
+        parts.headers.remove(header::CONTENT_LENGTH);
+        return Response::from_parts(parts, axum::body::Body::from(page));
     }
     res
 }
