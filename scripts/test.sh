@@ -9,6 +9,9 @@
 #   3. Python client tests against the real release binary
 #   4. hadolint on the Dockerfile
 #   5. schemathesis against the running release binary
+#   6. Swagger UI in headless Chromium against the release binary
+#      (scripts/browser_check.sh: installs Debian's chromium with apt-get
+#      and playwright-core with npm; needs Node.js 20 or newer)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 
@@ -84,6 +87,9 @@ fi
 kill $SERVER
 wait $SERVER 2>/dev/null || true
 trap - EXIT
+
+step "Swagger UI in headless Chromium (/docs, directly and behind a path prefix)"
+scripts/browser_check.sh "$BIN"
 
 echo
 echo "all suites passed"
