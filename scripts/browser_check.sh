@@ -26,26 +26,12 @@ node -e 'process.exit(+process.versions.node.split(".")[0] >= 20 ? 0 : 1)' \
   || { echo "Node.js 20 or newer is needed (found $(node --version))"; exit 1; }
 npm ci --prefix tests/browser --no-audit --no-fund --loglevel=error >/dev/null
 
+# shellcheck source=scripts/server.sh
+. scripts/server.sh
 LOG=$(mktemp -t ilqr-browser-server.XXXXXX.log)
 SERVER=""
-trap 'if [ -n "$SERVER" ]; then kill $SERVER 2>/dev/null || true; fi' EXIT
-# The port was free when picked; if another process takes it first, the
-# server exits: pick another (three tries).
-for _ in 1 2 3; do
-  PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-  "$BIN" serve --bind "127.0.0.1:$PORT" >"$LOG" 2>&1 &
-  SERVER=$!
-  HEALTHY=""
-  for _ in $(seq 100); do
-    if "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then HEALTHY=1; break; fi
-    kill -0 $SERVER 2>/dev/null || break
-    sleep 0.1
-  done
-  [ -n "$HEALTHY" ] && break
-  kill $SERVER 2>/dev/null || true
-  wait $SERVER 2>/dev/null || true
-done
-[ -n "$HEALTHY" ] || { echo "the server never became healthy:"; cat "$LOG"; exit 1; }
+trap stop_server EXIT
+start_server "$BIN" "$LOG"
 
 SHOTS=$(mktemp -d -t ilqr-docs-shots.XXXXXX)
 status=0

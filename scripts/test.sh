@@ -9,7 +9,9 @@
 #   3. Python client tests against the real release binary
 #   4. hadolint on the Dockerfile
 #   5. schemathesis against the running release binary
-#   6. Swagger UI in headless Chromium against the release binary
+#   6. malformed raw HTTP requests against it (fuzz/http/raw_requests.py)
+#   7. the fuzz targets compile and lint clean (running them is manual)
+#   8. Swagger UI in headless Chromium against the release binary
 #      (scripts/browser_check.sh: installs Debian's chromium with apt-get
 #      and playwright-core with npm; needs Node.js 20 or newer)
 set -euo pipefail
@@ -53,40 +55,35 @@ step "mypy --strict: the Python client's types, numpy arrays included"
 step "hadolint Dockerfile"
 .venv/bin/hadolint Dockerfile && echo "hadolint: clean"
 
+# shellcheck source=scripts/server.sh
+. scripts/server.sh
+SERVER=""
+SERVER_LOG=""
+trap 'stop_server; if [ -n "$SERVER_LOG" ]; then echo "server log: $SERVER_LOG"; fi' EXIT
+
 step "schemathesis against the running release binary"
 # Short budgets: generated problems may ask for 10000 steps and iterations.
 SERVER_LOG=$(mktemp -t ilqr-schemathesis-server.XXXXXX.log)
-SERVER=""
-trap 'if [ -n "$SERVER" ]; then kill $SERVER 2>/dev/null || true; fi; echo "server log: $SERVER_LOG"' EXIT
-# The port was free when picked; another process may take it before the
-# server binds, and the server then exits: pick another (three tries).
-for _ in 1 2 3; do
-  PORT=$(.venv/bin/python -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
-  "$BIN" serve --bind "127.0.0.1:$PORT" --default-time-limit-ms 200 --max-time-limit-ms 500 \
-    --queue-capacity 64 >"$SERVER_LOG" 2>&1 &
-  SERVER=$!
-  HEALTHY=""
-  for _ in $(seq 100); do
-    if "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then HEALTHY=1; break; fi
-    kill -0 $SERVER 2>/dev/null || break
-    sleep 0.1
-  done
-  [ -n "$HEALTHY" ] && break
-  kill $SERVER 2>/dev/null || true
-  wait $SERVER 2>/dev/null || true
-done
-if [ -z "$HEALTHY" ]; then
-  echo "the server for schemathesis never became healthy:"; cat "$SERVER_LOG"; exit 1
-fi
+start_server "$BIN" "$SERVER_LOG" --default-time-limit-ms 200 --max-time-limit-ms 500 \
+  --queue-capacity 64
 # Every check but one: positive_data_acceptance would demand a 2xx for any
 # schema-valid problem, but one rule cannot be written in JSON Schema:
 # initial_controls must have exactly `horizon` rows (a 422 with its pointer).
 .venv/bin/schemathesis run openapi/openapi.json --url "http://127.0.0.1:$PORT" \
   --checks all --exclude-checks positive_data_acceptance \
   --max-examples 40 --seed 1 --no-color
-kill $SERVER
-wait $SERVER 2>/dev/null || true
+stop_server
+
+step "malformed raw HTTP requests (framing, headers, methods, paths): no 5xx, no hang"
+SERVER_LOG=$(mktemp -t ilqr-raw-http-server.XXXXXX.log)
+start_server "$BIN" "$SERVER_LOG" --read-timeout-secs 2 --workers 1
+.venv/bin/python fuzz/http/raw_requests.py "$PORT"
+stop_server
 trap - EXIT
+
+step "fuzz targets compile, lint clean (running them: README, Fuzzing)"
+(cd fuzz && cargo fmt -- --check \
+  && CARGO_TARGET_DIR="$TARGET_DIR" cargo clippy --locked --release -- -D warnings)
 
 step "Swagger UI in headless Chromium (/docs, directly and behind a path prefix)"
 scripts/browser_check.sh "$BIN"

@@ -1,0 +1,201 @@
+//! Target 2: structured VALID problems with extreme-but-allowed values
+//! (the validation limits as bounds). Every solve must end within its
+//! budget with a status, every number in the result must be finite, and
+//! the result must serialise to JSON without `null`.
+#![no_main]
+
+use std::sync::atomic::AtomicBool;
+use std::time::{Duration, Instant};
+
+use arbitrary::Arbitrary;
+use ilqr_service::problem::{
+    Limits, MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_ITERATIONS, MAX_OBSTACLES, MAX_PARAMETER,
+    MAX_STATE, MAX_WEIGHT, MIN_PARAMETER, Obstacle, ProblemSpec,
+};
+use libfuzzer_sys::fuzz_target;
+
+fn extreme() -> bool {
+    static E: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *E.get_or_init(|| std::env::var_os("FUZZ_EXTREME").is_some())
+}
+
+#[path = "common.rs"]
+mod common;
+
+/// A number inside a field's range, biased to its edges.
+#[derive(Arbitrary, Debug, Clone, Copy)]
+enum Num {
+    Lo,
+    Hi,
+    Zero,
+    Tiny,
+    One,
+    /// Log-uniform magnitude between the range's ends (sign from the bool
+    /// where the range is symmetric).
+    Log(u16, bool),
+    /// Any f64; used when it lies in range, else folded onto Log.
+    Raw(f64),
+}
+
+impl Num {
+    /// Map into [lo, hi] (lo ≥ 0) or, when `symmetric`, into [-hi, hi].
+    fn get(self, lo: f64, hi: f64, symmetric: bool) -> f64 {
+        let ok = |x: f64| {
+            x.is_finite()
+                && if symmetric {
+                    x.abs() <= hi
+                } else {
+                    (lo..=hi).contains(&x)
+                }
+        };
+        let v = match self {
+            Num::Lo => {
+                if symmetric {
+                    -hi
+                } else {
+                    lo
+                }
+            }
+            Num::Hi => hi,
+            Num::Zero => 0.0,
+            Num::Tiny => f64::from_bits(1), // 5e-324
+            Num::One => 1.0,
+            // FUZZ_EXTREME=1: only the ends of each range (and their
+            // neighbours), to hunt overflow at the limits.
+            Num::Log(t, neg) if extreme() => {
+                let a = if lo > 0.0 { lo } else { f64::from_bits(1) };
+                let m = match t % 4 {
+                    0 => a,
+                    1 => hi,
+                    2 => hi * (1.0 - 1e-9),
+                    _ => a * 1.5,
+                };
+                if symmetric && neg { -m } else { m }
+            }
+            Num::Log(t, neg) => {
+                let a = if lo > 0.0 { lo } else { 1e-12 };
+                let f = f64::from(t) / f64::from(u16::MAX);
+                let m = (a.ln() + f * (hi.ln() - a.ln())).exp().clamp(a, hi);
+                if symmetric && neg { -m } else { m }
+            }
+            Num::Raw(x) => x,
+        };
+        if ok(v) {
+            v
+        } else if symmetric {
+            0.0
+        } else {
+            lo
+        }
+    }
+}
+
+#[derive(Arbitrary, Debug)]
+struct Input {
+    mass: Num,
+    inertia: Num,
+    arm: Num,
+    gravity: Num,
+    dt: Num,
+    horizon: u16,
+    long: bool,
+    x0: [Num; 6],
+    goal: [Num; 6],
+    wq: [Num; 6],
+    wr: [Num; 2],
+    wf: [Num; 6],
+    obstacles: Vec<([Num; 2], Num)>,
+    /// Initial controls: a pattern repeated over the horizon, or hover.
+    controls: Option<Vec<[Num; 2]>>,
+    max_iterations: u16,
+    tolerance: Num,
+    budget_ms: u8,
+}
+
+fuzz_target!(|input: Input| {
+    let mut spec = ProblemSpec::default();
+    let m = &mut spec.model;
+    m.mass = input.mass.get(MIN_PARAMETER, MAX_PARAMETER, false);
+    m.inertia = input.inertia.get(MIN_PARAMETER, MAX_PARAMETER, false);
+    m.arm_length = input.arm.get(MIN_PARAMETER, MAX_PARAMETER, false);
+    m.gravity = input.gravity.get(0.0, MAX_GRAVITY, false);
+    spec.dt = input.dt.get(1e-300, MAX_DT, false);
+    if spec.dt <= 0.0 {
+        spec.dt = 1e-300;
+    }
+    // Mostly short horizons so execs are fast; sometimes up to 10000.
+    spec.horizon = if input.long {
+        1 + usize::from(input.horizon) % 10_000
+    } else {
+        1 + usize::from(input.horizon) % 300
+    };
+    for i in 0..6 {
+        spec.initial_state[i] = input.x0[i].get(0.0, MAX_STATE, true);
+        spec.goal_state[i] = input.goal[i].get(0.0, MAX_STATE, true);
+        spec.weights.state[i] = input.wq[i].get(0.0, MAX_WEIGHT, false);
+        spec.weights.terminal[i] = input.wf[i].get(0.0, MAX_WEIGHT, false);
+    }
+    for i in 0..2 {
+        spec.weights.control[i] = input.wr[i].get(0.0, MAX_WEIGHT, false);
+    }
+    spec.obstacles = input
+        .obstacles
+        .iter()
+        .take(MAX_OBSTACLES)
+        .map(|(c, w)| Obstacle {
+            center: [
+                c[0].get(0.0, MAX_STATE, true),
+                c[1].get(0.0, MAX_STATE, true),
+            ],
+            weight: w.get(0.0, MAX_WEIGHT, false),
+        })
+        .collect();
+    spec.initial_controls = input.controls.as_ref().filter(|p| !p.is_empty()).map(|p| {
+        (0..spec.horizon)
+            .map(|k| {
+                let u = p[k % p.len()];
+                [
+                    u[0].get(0.0, MAX_CONTROL, true),
+                    u[1].get(0.0, MAX_CONTROL, true),
+                ]
+            })
+            .collect()
+    });
+    spec.solver.max_iterations = usize::from(input.max_iterations) % (MAX_ITERATIONS + 1);
+    let tol = input.tolerance.get(0.0, 1.0, false);
+    spec.solver.tolerance = if tol >= 1.0 { 0.999 } else { tol };
+    let budget_ms = 1 + u64::from(input.budget_ms) % 30;
+    spec.solver.time_limit_ms = Some(budget_ms);
+
+    let limits = Limits {
+        max_horizon: 10_000,
+        max_time_limit_ms: Some(60_000),
+    };
+    if let Err(e) = spec.validate(&limits) {
+        // A harness bug, not a finding.
+        panic!("harness built an invalid problem: {:?}", e.errors);
+    }
+    // Round trip through the wire format, as a client would send it.
+    let body = serde_json::to_vec(&spec).expect("spec serialises");
+    let spec = ilqr_service::problem::parse(&body).expect("a valid spec parses back");
+
+    let budget = Duration::from_millis(budget_ms);
+    let started = Instant::now();
+    match ilqr_service::solve::solve(&spec, Some(budget), &AtomicBool::new(false)) {
+        Ok(r) => {
+            if std::env::var_os("FUZZ_STATS").is_some() {
+                eprintln!(
+                    "STAT {:?} it={} N={} conv={:?}",
+                    r.status,
+                    r.iterations,
+                    spec.horizon,
+                    r.convexified_after_iteration.is_some()
+                );
+            }
+            common::check_time(started, budget, &r, "valid_solve");
+            common::check_finite(&r, "valid_solve");
+            common::check_json(&r, "valid_solve");
+        }
+        Err(u) => panic!("validated problem unsolvable: {:?}", u.0),
+    }
+});

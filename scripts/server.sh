@@ -1,0 +1,36 @@
+# Sourced by scripts/test.sh and scripts/browser_check.sh:
+#   start_server BIN LOG [serve flags...]
+# starts `BIN serve --bind 127.0.0.1:PORT flags...` on a free port, waits
+# until it answers /healthz, and sets PORT and SERVER (its PID). The port
+# was free when picked; if another process takes it before the server
+# binds, the server exits and another port is tried (three tries). Returns
+# 1, with the server's log printed, if it never became healthy.
+start_server() {
+  local bin=$1 log=$2 healthy=""
+  shift 2
+  for _ in 1 2 3; do
+    PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    "$bin" serve --bind "127.0.0.1:$PORT" "$@" >"$log" 2>&1 &
+    SERVER=$!
+    for _ in $(seq 100); do
+      if "$bin" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then healthy=1; break; fi
+      kill -0 "$SERVER" 2>/dev/null || break
+      sleep 0.1
+    done
+    [ -n "$healthy" ] && return 0
+    kill "$SERVER" 2>/dev/null || true
+    wait "$SERVER" 2>/dev/null || true
+  done
+  echo "the server never became healthy:"
+  cat "$log"
+  return 1
+}
+
+# Stops the server start_server started (if any) and waits for it.
+stop_server() {
+  if [ -n "${SERVER:-}" ]; then
+    kill "$SERVER" 2>/dev/null || true
+    wait "$SERVER" 2>/dev/null || true
+    SERVER=""
+  fi
+}
