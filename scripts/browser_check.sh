@@ -12,14 +12,22 @@
 # Needs Node.js 20 or newer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-BIN="${1:-target/release/ilqr-service}"
-CHROMIUM="${CHROMIUM:-/usr/bin/chromium}"
+# Honour CARGO_TARGET_DIR (a stale ./target must not be tested instead).
+BIN="${1:-$(cargo metadata --format-version 1 --no-deps \
+  | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/ilqr-service}"
+[ -x "$BIN" ] || { echo "no binary at $BIN (cargo build --release first)"; exit 1; }
 
-if [ ! -x "$CHROMIUM" ]; then
-  echo "installing chromium (apt-get)"
-  SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
-  $SUDO apt-get install -y -qq chromium >/dev/null 2>&1 \
-    || { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium >/dev/null; }
+if [ -n "${CHROMIUM:-}" ]; then
+  [ -x "$CHROMIUM" ] || { echo "CHROMIUM=$CHROMIUM is not an executable"; exit 1; }
+else
+  CHROMIUM=/usr/bin/chromium
+  if [ ! -x "$CHROMIUM" ]; then
+    echo "installing chromium (apt-get)"
+    SUDO=""; [ "$(id -u)" -eq 0 ] || SUDO=sudo
+    export DEBIAN_FRONTEND=noninteractive
+    $SUDO apt-get install -y -qq chromium >/dev/null 2>&1 \
+      || { $SUDO apt-get update -qq && $SUDO apt-get install -y -qq chromium >/dev/null; }
+  fi
 fi
 command -v node >/dev/null || { echo "Node.js 20 or newer is needed (node not found)"; exit 1; }
 node -e 'process.exit(+process.versions.node.split(".")[0] >= 20 ? 0 : 1)' \
@@ -39,5 +47,9 @@ node tests/browser/docs_check.mjs "http://127.0.0.1:$PORT" --chromium "$CHROMIUM
   --shots "$SHOTS" || status=1
 node tests/browser/docs_check.mjs "http://127.0.0.1:$PORT" --behind-prefix /ilqr \
   --resolve ilqr.test --chromium "$CHROMIUM" --shots "$SHOTS" || status=1
-[ $status -eq 0 ] || echo "screenshots of each step: $SHOTS; server log: $LOG"
+if [ $status -eq 0 ]; then
+  rm -rf "$SHOTS" "$LOG"
+else
+  echo "screenshots of each step: $SHOTS; server log: $LOG"
+fi
 exit $status

@@ -788,6 +788,8 @@ async fn docs_and_spec_are_served() {
     assert!(page.contains("swagger-ui-bundle.js"), "{page}");
     // The browser tab names the service.
     assert!(page.contains("<title>ilqr-service API</title>"), "{page}");
+    let index = s.get("/docs/index.html").await.text().await.unwrap();
+    assert_eq!(index, page);
     // Swagger UI shows summaries as plain text: one short sentence each,
     // no Markdown code marks (those belong in the description).
     for (path, item) in spec["paths"].as_object().unwrap() {

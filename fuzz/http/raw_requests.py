@@ -11,18 +11,17 @@ PORT = int(sys.argv[1])
 SEED = b'{}'
 findings = []
 
-def send(raw, read_timeout=15.0, half_close=False, pieces=None):
+def send(raw, read_timeout=15.0):
+    """Sends `raw`, then reads until the server closes (or `read_timeout`)."""
     s = socket.create_connection(("127.0.0.1", PORT), timeout=read_timeout)
     t0 = time.monotonic()
     try:
-        if pieces:
-            for p, delay in pieces:
-                s.sendall(p); time.sleep(delay)
-        else:
+        try:
             s.sendall(raw)
-        if half_close:
-            try: s.shutdown(socket.SHUT_WR)
-            except OSError: pass
+        except OSError:
+            # The server may answer (413, 400) and close before it has read
+            # everything: read what it said all the same.
+            pass
         data = b""
         while True:
             try:
@@ -139,6 +138,10 @@ cases = {
  "metrics_post": req(path=b"/metrics", headers=[H, J, C, cl(small)], body=small),
  "problems_default_head": req(method=b"HEAD", path=b"/problems/default", headers=[H, C]),
  "gzip_answer": req(headers=[H, J, C, (b"Accept-Encoding", b"gzip"), cl(small)], body=small),
+ # Stalls: the server's read timeout (2 s here) must end them, a half-sent
+ # body with 408 and an unfinished head by closing the connection.
+ "stall_body": req(headers=[H, J, C, (b"Content-Length", b"100")], body=b'{"dt"'),
+ "stall_head": b"POST /solve HTTP/1.1\r\nHost: x\r\n",
  "horizon_10000": req(headers=[H, J, C, (b"Accept-Encoding", b"gzip")] + [cl(b'{"horizon": 10000, "dt": 0.001, "solver": {"time_limit_ms": 20}}')], body=b'{"horizon": 10000, "dt": 0.001, "solver": {"time_limit_ms": 20}}'),
 }
 
@@ -156,20 +159,5 @@ for name, raw in cases.items():
         findings.append(name)
     print(f"{name:22s} {str(st):22s} {how:8s} {took*1000:8.1f} ms alive={ok} {head!r}{flag}")
 
-# A half-sent body: the server must answer 408 after its read timeout, not hang.
-try:
-    data, took, how = send(None, read_timeout=20, half_close=False,
-        pieces=[(req(headers=[H, J, C, (b"Content-Length", b"100")], body=b'{"dt"'), 0)])
-    print(f"{'half_body':22s} {statuses(data)!s:22s} {how:8s} {took*1000:8.1f} ms")
-    if how == "TIMEOUT": findings.append("half_body")
-except OSError as e:
-    print("half_body", e)
-# Headers never finished.
-try:
-    data, took, how = send(None, read_timeout=20, half_close=False, pieces=[(b"POST /solve HTTP/1.1\r\nHost: x\r\n", 0)])
-    print(f"{'half_head':22s} {statuses(data)!s:22s} {how:8s} {took*1000:8.1f} ms")
-    if how == "TIMEOUT": findings.append("half_head")
-except OSError as e:
-    print("half_head", e)
 print("FINDINGS:", findings)
 sys.exit(1 if findings else 0)

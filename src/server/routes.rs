@@ -736,8 +736,13 @@ async fn docs_fixes(res: Response) -> Response {
         .headers()
         .get(header::CONTENT_TYPE)
         .is_some_and(|v| v.as_bytes().starts_with(b"text/html"));
-    if res.status() == StatusCode::OK && is_html {
-        // The page (about 1 KB) names the service in its tab, not "Swagger UI".
+    // The page is 740 bytes; anything much larger is not the page this
+    // rewrite knows, and passes through untouched.
+    let small = axum::body::HttpBody::size_hint(res.body())
+        .upper()
+        .is_some_and(|n| n <= 64 * 1024);
+    if res.status() == StatusCode::OK && is_html && small {
+        // The page names the service in its tab, not "Swagger UI".
         let (mut parts, body) = res.into_parts();
         let Ok(page) = axum::body::to_bytes(body, 64 * 1024).await else {
             return ApiError::Internal.into_response();
