@@ -12,9 +12,9 @@
 # Needs Node.js 20 or newer.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-# Honour CARGO_TARGET_DIR (a stale ./target must not be tested instead).
-BIN="${1:-$(cargo metadata --format-version 1 --no-deps \
-  | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')/release/ilqr-service}"
+# shellcheck source=scripts/lib.sh
+. scripts/lib.sh
+BIN="${1:-$(target_dir)/release/ilqr-service}"
 [ -x "$BIN" ] || { echo "no binary at $BIN (cargo build --release first)"; exit 1; }
 
 if [ -n "${CHROMIUM:-}" ]; then
@@ -34,8 +34,6 @@ node -e 'process.exit(+process.versions.node.split(".")[0] >= 20 ? 0 : 1)' \
   || { echo "Node.js 20 or newer is needed (found $(node --version))"; exit 1; }
 npm ci --prefix tests/browser --no-audit --no-fund --loglevel=error >/dev/null
 
-# shellcheck source=scripts/server.sh
-. scripts/server.sh
 LOG=$(mktemp -t ilqr-browser-server.XXXXXX.log)
 SERVER=""
 trap stop_server EXIT

@@ -18,6 +18,8 @@ set -euo pipefail
 cd "$(dirname "$0")/.."
 
 step() { printf '\n==> %s\n' "$*"; }
+# shellcheck source=scripts/lib.sh
+. scripts/lib.sh
 
 step "Python tools (.venv)"
 if [ ! -x .venv/bin/python ]; then
@@ -37,9 +39,7 @@ cargo test --locked --workspace --release
 
 step "release binary"
 cargo build --locked --release --bin ilqr-service
-# Honour CARGO_TARGET_DIR (a stale ./target must not be tested instead).
-TARGET_DIR=$(cargo metadata --format-version 1 --no-deps \
-  | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])')
+TARGET_DIR=$(target_dir)
 BIN="$TARGET_DIR/release/ilqr-service"
 
 step "OpenAPI freshness (the CLI prints the same document)"
@@ -55,8 +55,6 @@ step "mypy --strict: the Python client's types, numpy arrays included"
 step "hadolint Dockerfile"
 .venv/bin/hadolint Dockerfile && echo "hadolint: clean"
 
-# shellcheck source=scripts/server.sh
-. scripts/server.sh
 SERVER=""
 SERVER_LOG=""
 trap 'stop_server; if [ -n "$SERVER_LOG" ]; then echo "server log: $SERVER_LOG"; fi' EXIT

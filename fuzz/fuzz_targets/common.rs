@@ -1,72 +1,34 @@
 //! Shared checks for the fuzz targets.
+use std::sync::OnceLock;
 use std::time::{Duration, Instant};
 
+use ilqr_service::problem::Limits;
 use ilqr_service::solve::{SolveResult, SolveStatus};
 
-/// Every number in a result must be finite (serde_json writes NaN/inf as
-/// `null`, which the OpenAPI schema's `number` does not allow).
-pub fn check_finite(r: &SolveResult, what: &str) {
-    let bad = |name: &str, x: f64| {
-        if !x.is_finite() {
-            panic!(
-                "{what}: non-finite {name} = {x} (status {:?}, iterations {})",
-                r.status, r.iterations
-            );
-        }
-    };
-    bad("cost", r.cost);
-    bad("initial_cost", r.initial_cost);
-    bad("goal_distance", r.goal_distance);
-    for (j, c) in r.closest_approach.iter().enumerate() {
-        bad(&format!("closest_approach[{j}]"), *c);
+/// The service's limits with no flags (max horizon 10000, max time limit
+/// 60000 ms), read once.
+pub fn service_limits() -> Limits {
+    static LIMITS: OnceLock<Limits> = OnceLock::new();
+    *LIMITS.get_or_init(|| ilqr_service::server::Config::default().limits())
+}
+
+/// The result as the service would send it: it serialises, reads back,
+/// holds only finite numbers (serde_json writes NaN and ±inf as `null`,
+/// which the OpenAPI schema's `number` does not allow; the panic names the
+/// first one's JSON pointer), and costs no more than the initial guess
+/// (documented).
+pub fn check_result(r: &SolveResult, what: &str) {
+    let json = r
+        .to_json()
+        .unwrap_or_else(|e| panic!("{what}: to_json failed: {e}"));
+    let v: serde_json::Value = serde_json::from_slice(&json)
+        .unwrap_or_else(|e| panic!("{what}: result JSON does not parse: {e}"));
+    if let Some(pointer) = first_null(&v, String::new()) {
+        panic!(
+            "{what}: non-finite number at {pointer} (status {:?}, iterations {})",
+            r.status, r.iterations
+        );
     }
-    for (k, x) in r.states.iter().enumerate() {
-        for (i, v) in x.iter().enumerate() {
-            bad(&format!("states[{k}][{i}]"), *v);
-        }
-    }
-    for (k, u) in r.controls.iter().enumerate() {
-        for (i, v) in u.iter().enumerate() {
-            bad(&format!("controls[{k}][{i}]"), *v);
-        }
-    }
-    if let Some(g) = &r.gains {
-        bad("gains.regularization", g.regularization);
-        for (k, m) in g.feedback.iter().enumerate() {
-            for (i, row) in m.iter().enumerate() {
-                for (j, v) in row.iter().enumerate() {
-                    bad(&format!("gains.feedback[{k}][{i}][{j}]"), *v);
-                }
-            }
-        }
-        for (k, d) in g.feedforward.iter().enumerate() {
-            for (i, v) in d.iter().enumerate() {
-                bad(&format!("gains.feedforward[{k}][{i}]"), *v);
-            }
-        }
-    }
-    if let Some(t) = &r.trace {
-        for (k, row) in t.iter().enumerate() {
-            bad(&format!("trace[{k}].cost"), row.cost);
-            bad(
-                &format!("trace[{k}].expected_reduction"),
-                row.expected_reduction,
-            );
-            bad(
-                &format!("trace[{k}].actual_reduction"),
-                row.actual_reduction,
-            );
-            bad(&format!("trace[{k}].step_size"), row.step_size);
-            bad(&format!("trace[{k}].regularization"), row.regularization);
-            bad(
-                &format!("trace[{k}].feedforward_norm"),
-                row.feedforward_norm,
-            );
-            bad(&format!("trace[{k}].elapsed_ms"), row.elapsed_ms);
-        }
-    }
-    bad("solve_time_ms", r.solve_time_ms);
-    // Documented: cost never above the initial cost.
     if r.cost > r.initial_cost {
         panic!(
             "{what}: cost {} above initial cost {}",
@@ -75,24 +37,18 @@ pub fn check_finite(r: &SolveResult, what: &str) {
     }
 }
 
-/// The result serialises, the JSON reads back, and it holds no `null`.
-pub fn check_json(r: &SolveResult, what: &str) {
-    let json = r
-        .to_json()
-        .unwrap_or_else(|e| panic!("{what}: to_json failed: {e}"));
-    let v: serde_json::Value = serde_json::from_slice(&json)
-        .unwrap_or_else(|e| panic!("{what}: result JSON does not parse: {e}"));
-    if contains_null(&v) {
-        panic!("{what}: result JSON contains null");
-    }
-}
-
-fn contains_null(v: &serde_json::Value) -> bool {
+/// The JSON pointer of the first `null` in `v`, if any.
+fn first_null(v: &serde_json::Value, at: String) -> Option<String> {
     match v {
-        serde_json::Value::Null => true,
-        serde_json::Value::Array(a) => a.iter().any(contains_null),
-        serde_json::Value::Object(o) => o.values().any(contains_null),
-        _ => false,
+        serde_json::Value::Null => Some(at),
+        serde_json::Value::Array(a) => a
+            .iter()
+            .enumerate()
+            .find_map(|(i, x)| first_null(x, format!("{at}/{i}"))),
+        serde_json::Value::Object(o) => o
+            .iter()
+            .find_map(|(k, x)| first_null(x, format!("{at}/{k}"))),
+        _ => None,
     }
 }
 

@@ -6,7 +6,7 @@
 use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
-use ilqr_service::problem::{Limits, ParseError, parse};
+use ilqr_service::problem::{ParseError, parse};
 use ilqr_service::server::ApiError;
 use libfuzzer_sys::fuzz_target;
 
@@ -28,12 +28,8 @@ fn render(e: ApiError) {
 }
 
 fuzz_target!(|data: &[u8]| {
-    // As the server: the service's default limits (max horizon 10000,
-    // max time limit 60000).
-    let limits = Limits {
-        max_horizon: 10_000,
-        max_time_limit_ms: Some(60_000),
-    };
+    // As the server with no flags.
+    let limits = common::service_limits();
     let spec = match parse(data) {
         Ok(spec) => spec,
         Err(ParseError::Syntax(msg)) => return render(ApiError::MalformedJson(msg)),
@@ -57,8 +53,7 @@ fuzz_target!(|data: &[u8]| {
     match ilqr_service::solve::solve(&spec, Some(budget), &cancel) {
         Ok(r) => {
             common::check_time(started, budget, &r, "parse_solve");
-            common::check_finite(&r, "parse_solve");
-            common::check_json(&r, "parse_solve");
+            common::check_result(&r, "parse_solve");
         }
         // A validated problem the solver refuses: the service answers 422
         // with this pointer; README: "The ranges guarantee that no valid

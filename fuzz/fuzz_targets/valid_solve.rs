@@ -1,7 +1,6 @@
 //! Target 2: structured VALID problems with extreme-but-allowed values
 //! (the validation limits as bounds). Every solve must end within its
-//! budget with a status, every number in the result must be finite, and
-//! the result must serialise to JSON without `null`.
+//! budget with a status and pass `common::check_result`.
 #![no_main]
 
 use std::sync::atomic::AtomicBool;
@@ -9,8 +8,8 @@ use std::time::{Duration, Instant};
 
 use arbitrary::Arbitrary;
 use ilqr_service::problem::{
-    Limits, MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_ITERATIONS, MAX_OBSTACLES, MAX_PARAMETER,
-    MAX_STATE, MAX_WEIGHT, MIN_PARAMETER, Obstacle, ProblemSpec,
+    MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_ITERATIONS, MAX_OBSTACLES, MAX_PARAMETER, MAX_STATE,
+    MAX_WEIGHT, MIN_PARAMETER, Obstacle, ProblemSpec,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -167,10 +166,7 @@ fuzz_target!(|input: Input| {
     let budget_ms = 1 + u64::from(input.budget_ms) % 30;
     spec.solver.time_limit_ms = Some(budget_ms);
 
-    let limits = Limits {
-        max_horizon: 10_000,
-        max_time_limit_ms: Some(60_000),
-    };
+    let limits = common::service_limits();
     if let Err(e) = spec.validate(&limits) {
         // A harness bug, not a finding.
         panic!("harness built an invalid problem: {:?}", e.errors);
@@ -193,8 +189,7 @@ fuzz_target!(|input: Input| {
                 );
             }
             common::check_time(started, budget, &r, "valid_solve");
-            common::check_finite(&r, "valid_solve");
-            common::check_json(&r, "valid_solve");
+            common::check_result(&r, "valid_solve");
         }
         Err(u) => panic!("validated problem unsolvable: {:?}", u.0),
     }

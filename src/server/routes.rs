@@ -636,10 +636,10 @@ fn reject(e: ApiError) -> ApiError {
 
 /// The default problem, every field expanded.
 ///
-/// The seed scenario: fetch it, edit it, post it back. `solver.time_limit_ms` is this
-/// service's default budget; `initial_controls` is left out (its default,
-/// hover thrust, is N rows that would no longer fit once the horizon is
-/// edited).
+/// The seed scenario: fetch it, edit it, post it back.
+/// `solver.time_limit_ms` is this service's default budget;
+/// `initial_controls` is left out (its default, hover thrust, is N rows
+/// that would no longer fit once the horizon is edited).
 #[utoipa::path(
     get,
     path = "/problems/default",
@@ -738,13 +738,14 @@ async fn docs_fixes(res: Response) -> Response {
         .is_some_and(|v| v.as_bytes().starts_with(b"text/html"));
     // The page is 740 bytes; anything much larger is not the page this
     // rewrite knows, and passes through untouched.
+    const PAGE_LIMIT: usize = 64 * 1024;
     let small = axum::body::HttpBody::size_hint(res.body())
         .upper()
-        .is_some_and(|n| n <= 64 * 1024);
+        .is_some_and(|n| n <= PAGE_LIMIT as u64);
     if res.status() == StatusCode::OK && is_html && small {
         // The page names the service in its tab, not "Swagger UI".
         let (mut parts, body) = res.into_parts();
-        let Ok(page) = axum::body::to_bytes(body, 64 * 1024).await else {
+        let Ok(page) = axum::body::to_bytes(body, PAGE_LIMIT).await else {
             return ApiError::Internal.into_response();
         };
         let page = String::from_utf8_lossy(&page).replacen(

@@ -106,7 +106,6 @@ const context = await chromium.launchPersistentContext(userDataDir, {
   executablePath: opt.chromium, headless: true, args,
   viewport: { width: 1280, height: 900 }, acceptDownloads: true,
 });
-const browser = { version: () => context.browser()?.version() ?? '?', close: () => context.close() };
 const page = context.pages()[0] ?? await context.newPage();
 page.setDefaultTimeout(15000);
 
@@ -199,10 +198,9 @@ async function execute(op, body, name) {
   return { ui, net, newReqs };
 }
 
-let exitCode = 0;
 try {
   // ---------------- 1. /docs loads, redirects, renders ----------------
-  info(`base ${base.href} (label ${label}); chromium ${browser.version()}`);
+  info(`base ${base.href} (label ${label}); chromium ${context.browser()?.version() ?? '?'}`);
   const spec = await getJson(at('openapi.json'));
   check('GET openapi.json (node) is 200 JSON', spec.status === 200 && spec.body, `status ${spec.status}`);
   const seed = await getJson(at('problems/default'));
@@ -431,11 +429,10 @@ const errs = consoleMsgs.filter((m) => (m.type === 'error' || m.type === 'pageer
   && !(m.phase.startsWith('execute:') && m.phase !== 'execute:example' && /status of 4\d\d/.test(m.text)));
 check('no console errors (besides the deliberate 4xx)', errs.length === 0, errs.map((m) => m.text).join(' | ').slice(0, 500));
 
-await browser.close();
+await context.close();
 if (proxy) proxy.close();
 await rm(userDataDir, { recursive: true, force: true });
 console.log(`screenshots: ${shotsDir}`);
 const failedChecks = results.filter((r) => !r.ok);
 console.log(`\n${results.length - failedChecks.length} passed, ${failedChecks.length} failed (${((Date.now() - started) / 1000).toFixed(1)} s, ${base.href})`);
-if (failedChecks.length) exitCode = 1;
-process.exit(exitCode);
+process.exit(failedChecks.length ? 1 : 0);

@@ -1,4 +1,12 @@
-# Sourced by scripts/test.sh and scripts/browser_check.sh:
+# Sourced by scripts/test.sh and scripts/browser_check.sh.
+
+# The cargo target directory of this checkout: honours CARGO_TARGET_DIR
+# (a stale ./target must not be tested instead).
+target_dir() {
+  cargo metadata --format-version 1 --no-deps \
+    | python3 -c 'import json, sys; print(json.load(sys.stdin)["target_directory"])'
+}
+
 #   start_server BIN LOG [serve flags...]
 # starts `BIN serve --bind 127.0.0.1:PORT flags...` on a free port, waits
 # until it answers /healthz, and sets PORT and SERVER (its PID). The port
