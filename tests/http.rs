@@ -418,6 +418,10 @@ async fn every_error_class_is_a_problem_document() {
         "application/json; charset=utf8",
         "application/json; charset=US-ASCII",
         "application/vnd.ilqr+json",
+        "application/json ; charset=utf-8",
+        // A `;` inside a quoted value does not start a parameter.
+        "application/json; profile=\"a;charset=latin1\"",
+        "application/json; profile=\"a\\\";charset=latin1\"",
     ] {
         assert_eq!(raw("{}", Some(ok)).await.unwrap().status(), 200, "{ok}");
     }
@@ -430,6 +434,17 @@ async fn every_error_class_is_a_problem_document() {
     )
     .await;
     assert!(p["detail"].as_str().unwrap().contains("UTF-8 JSON"), "{p}");
+    // Every charset counts, after a quoted `;` too.
+    for refused in [
+        "application/json; profile=\"a;b\"; charset=latin1",
+        "application/json; charset=utf-8; charset=latin1",
+    ] {
+        assert_eq!(
+            raw("{}", Some(refused)).await.unwrap().status(),
+            415,
+            "{refused}"
+        );
+    }
 
     let big = json!({"initial_controls": vec![[4.905, 4.905]; 1000], "horizon": 1000});
     let p = problem_of(s.post(&big).await, StatusCode::PAYLOAD_TOO_LARGE).await;

@@ -325,7 +325,7 @@ fn is_json(headers: &HeaderMap) -> bool {
     else {
         return false;
     };
-    let mut parts = ct.split(';');
+    let mut parts = split_params(ct);
     let essence = parts.next().unwrap_or("").trim().to_ascii_lowercase();
     // The body is read as UTF-8, JSON's only encoding (RFC 8259 §8.1): a
     // charset that says otherwise would be misread, so it is refused.
@@ -345,6 +345,27 @@ fn is_json(headers: &HeaderMap) -> bool {
     let json = essence == "application/json"
         || (essence.starts_with("application/") && essence.ends_with("+json"));
     json && utf8
+}
+
+/// Splits a media type at the `;` that are outside quoted strings (RFC 9110
+/// §5.6.4), so a parameter such as `foo="a;charset=latin1"` stays whole
+/// instead of yielding a charset. Whitespace around the pieces is left for
+/// the caller to trim.
+fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
+    let (mut quoted, mut escaped) = (false, false);
+    media_type.split(move |c: char| {
+        if escaped {
+            escaped = false;
+            return false;
+        }
+        match c {
+            '\\' if quoted => escaped = true,
+            '"' => quoted = !quoted,
+            ';' => return !quoted,
+            _ => {}
+        }
+        false
+    })
 }
 
 /// Solve a trajectory-optimisation problem.
