@@ -54,6 +54,15 @@ case in 45 iterations, 6 mm from the goal.
 Measured 2026-11-23 (300 problems, seed 1): with mu_max = 1e10 (f437613)
 converged 224, max_iterations 32, no_progress 44; with mu_max = 1e20
 (23a4aa3) converged 259, max_iterations 39, no_progress 2.
+
+Measured 2026-11-24: 260 / 40 / 0 before, 256 / 44 / 0 after the full-step
+test was made to need the next model's agreement (a review's problem ended
+4.3e-6 above IPOPT's optimum after one full step gained a thousandth of
+its prediction). 53 converged solves now stop at costs 2e-10 to 6.5e-7
+lower; 4 run on to the cap at costs 1.2e-9 to 7.2e-5 lower (problems 5,
+127, 243, 267: 127 is the false convergence above); none ends higher;
+iterations 37537 -> 38945. Converged with a last mu above 1: 8 (37, 83,
+118, 177, 205, 219, 244, 268).
 """
 
 import collections

@@ -187,7 +187,10 @@ pub struct SolverSpec {
     #[serde(deserialize_with = "de_iterations")]
     #[schema(default = 500, minimum = 0, maximum = 10000)]
     pub max_iterations: usize,
-    /// Relative cost change below which the solve has converged. Default 1e-9.
+    /// Relative cost change below which the solve has converged (when the
+    /// model about the result predicts no more either). Default 1e-9. With
+    /// 0 the solve runs until no step helps (`no_progress`),
+    /// `max_iterations` or the time budget.
     #[schema(default = 1e-9, minimum = 0.0, exclusive_maximum = 1.0)]
     pub tolerance: f64,
     /// Wall-clock budget in ms. When it runs out the solve stops with status

@@ -26,8 +26,10 @@ use crate::schema;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
-    /// The relative cost change fell below `solver.tolerance`, or the cost
-    /// is 0, its lower bound (a global optimum: every weight is zero, say).
+    /// A full step gained less than `solver.tolerance` relative to the
+    /// cost, and the model about the result predicts that another would
+    /// gain no more; or the cost is 0, its lower bound (a global optimum:
+    /// every weight is zero, say).
     Converged,
     /// `solver.max_iterations` ran out first.
     MaxIterations,
@@ -137,7 +139,12 @@ pub struct Gains {
     /// (`Q_uu + μI` in place of `Q_uu`, in the cost's units per N²). 0: the
     /// undamped Riccati gains; larger values give smaller, more cautious `K`
     /// and `d`. A solve that converges usually ends at 0; one stopped by a
-    /// cap, a budget or near an obstacle's steep centre may not.
+    /// cap, a budget or near an obstacle's steep centre may not. A solve
+    /// that ends `no_progress` or `max_iterations` after failed line
+    /// searches returns the least damped gains about its result (0 where
+    /// the model allows it). Gains at a large μ (above about 1e6, where the
+    /// solver had to overpower negative curvature) are not a stabilising
+    /// policy: check them in simulation before flying them.
     #[schema(minimum = 0.0)]
     pub regularization: f64,
     /// False: the gains were computed about the returned `states` and

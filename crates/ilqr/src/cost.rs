@@ -91,6 +91,12 @@ pub trait Cost<const NX: usize, const NU: usize>: Send + Sync {
     ) {
         self.stage_expand(k, x, u, e);
     }
+    /// Whether [`Cost::stage_expand_convex`] differs from
+    /// [`Cost::stage_expand`]. When it does not (the default), the solver's
+    /// convex fallback would repeat what just failed, so it is skipped.
+    fn has_convex_approximation(&self) -> bool {
+        false
+    }
     /// `l_f(x_N)`.
     fn terminal(&self, x: &SVector<f64, NX>) -> f64;
     /// Add the derivatives of `l_f` at `x` into `e`.
@@ -120,6 +126,11 @@ pub trait StageCost<const NX: usize, const NU: usize>: Send + Sync {
         e: &mut StageExpansion<NX, NU>,
     ) {
         self.expand(k, x, u, e);
+    }
+    /// Whether [`StageCost::expand_convex`] differs from
+    /// [`StageCost::expand`]: true for a term that overrides it.
+    fn has_convex_approximation(&self) -> bool {
+        false
     }
 }
 
@@ -193,6 +204,10 @@ impl<const NX: usize, const NU: usize> Cost<NX, NU> for Objective<NX, NU> {
         for t in &self.stage {
             t.expand_convex(k, x, u, e);
         }
+    }
+
+    fn has_convex_approximation(&self) -> bool {
+        self.stage.iter().any(|t| t.has_convex_approximation())
     }
 
     fn terminal(&self, x: &SVector<f64, NX>) -> f64 {
@@ -380,6 +395,11 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ExpObstacle {
             Matrix2::zeros()
         };
         self.add(&grad, &hess, e);
+    }
+
+    /// A zero weight has no curvature to drop.
+    fn has_convex_approximation(&self) -> bool {
+        self.weight != 0.0
     }
 }
 

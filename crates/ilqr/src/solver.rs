@@ -87,10 +87,13 @@ pub struct Options {
     pub max_iterations: usize,
     /// Convergence threshold, relative to the current cost: the solve has
     /// converged when a full step (α = 1) at μ ≤ `mu_converged_max` reduced
-    /// the cost by less than `tolerance·|J|`, or when the model predicts a
-    /// full step would and
-    /// `Q_uu` is positive definite without regularisation (μ ≤ `mu_min`, or
-    /// a pass at μ = 0 succeeds).
+    /// the cost by less than `tolerance·|J|` and the model about the new
+    /// iterate predicts that a full step would too, or when that model
+    /// predicts it and `Q_uu` is positive definite without regularisation
+    /// (μ ≤ `mu_min`, or a pass at μ = 0 succeeds). With 0 the solve runs
+    /// until no step helps, the cap or the budget, unless the model
+    /// predicts exactly no gain or the cost reaches
+    /// [`Options::cost_lower_bound`].
     pub tolerance: f64,
     /// Wall-clock budget; `None` for no limit. Checked every iteration and
     /// every 128 knots inside each pass, so a solve overruns it by at most
@@ -153,6 +156,9 @@ pub struct Options {
     /// again from `mu_init`, and the solve uses the convex expansion to its
     /// end. Only a solve that would have ended `NoProgress` changes, so the
     /// seed problem and every problem that converged before are untouched.
+    /// Skipped for a cost without a convex approximation
+    /// ([`Cost::has_convex_approximation`]: no obstacle), where it would
+    /// repeat what just failed.
     ///
     /// Over long horizons the exact Hessian's negative curvature
     /// accumulates through `V_xx` until no μ up to 1e20 makes `Q_uu`
@@ -187,8 +193,9 @@ impl Default for Options {
 /// best trajectory found so far.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Status {
-    /// The relative cost change fell below the tolerance, or the cost
-    /// reached [`Options::cost_lower_bound`].
+    /// The relative cost change fell below the tolerance and the model
+    /// predicts no more (see [`Options::tolerance`]), or the cost reached
+    /// [`Options::cost_lower_bound`].
     Converged,
     /// `max_iterations` were spent first.
     MaxIterations,
@@ -260,7 +267,11 @@ pub struct Summary {
     pub gains_about_previous_iterate: bool,
     /// The regularisation μ of the backward pass that produced the gains
     /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains
-    /// of the final model, larger values damp `K` and `d`. Meaningless
+    /// of the final model, larger values damp `K` and `d`. A solve that
+    /// ends `NoProgress` or `MaxIterations` on failed line searches (which
+    /// raise μ without moving the iterate) returns its iterate's least
+    /// regularised gains: μ = 0 where `Q_uu` is positive definite without
+    /// regularisation, else the μ of the first pass about it. Meaningless
     /// without [`Summary::has_gains`].
     pub gains_regularization: f64,
     /// The number of iterations completed when the solve fell back to the
@@ -498,6 +509,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut has_gains = false;
         let mut gains_current = false;
         let mut gains_mu = 0.0;
+        // The μ of the first backward pass that succeeded at the current
+        // iterate and expansion: the least regularised gains about it, since
+        // μ only grows between accepted steps.
+        let mut iterate_mu = None;
         let mut convexified_after = None;
         // Whether a step was accepted since the fallback to the convex
         // expansion. Its model cannot tell a minimum from a maximum or a
@@ -526,6 +541,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     break 'outer status;
                 }
                 stale = false;
+                iterate_mu = None;
             }
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
@@ -535,6 +551,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         has_gains = true;
                         gains_current = true;
                         gains_mu = mu;
+                        iterate_mu.get_or_insert(mu);
                         break bw;
                     }
                     // The pass writes into spare buffers, so an interrupted
@@ -544,7 +561,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
                             if let Some(status) =
-                                fall_back(options, &mut convexified_after, iterations)
+                                fall_back(problem, options, &mut convexified_after, iterations)
                             {
                                 break 'outer status;
                             }
@@ -572,10 +589,19 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // converged in exactly `max_iterations` iterations, or whose
             // warm start was already optimal (`max_iterations = 0`), is
             // `Converged`, not `MaxIterations`.
-            if converged || options.cost_lower_bound.is_some_and(|lb| cost <= lb) {
+            if options.cost_lower_bound.is_some_and(|lb| cost <= lb) {
                 break Status::Converged;
             }
             let negligible = |bw: &Backward| -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs();
+            // The last full step gained less than the tolerance, and the
+            // model at the new iterate agrees that a full step would gain no
+            // more. The step alone is not enough: one full step that gained a
+            // thousandth of its prediction ended a slow descent whose next
+            // model predicted 1300 times the tolerance (IPOPT then found the
+            // cost 4e-6 lower, at tolerance 1e-9).
+            if converged && mu <= options.mu_converged_max && negligible(&bw) {
+                break Status::Converged;
+            }
             let stationary = if convexified_after.is_some() && !moved_since_convexified {
                 Status::NoProgress
             } else {
@@ -608,6 +634,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         bw = unregularised;
                         mu = 0.0;
                         gains_mu = 0.0;
+                        iterate_mu = Some(0.0);
                         if negligible(&bw) {
                             break stationary;
                         }
@@ -703,12 +730,37 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             row.elapsed = start.elapsed();
             self.trace.push(row);
             if mu > options.mu_max {
-                if let Some(status) = fall_back(options, &mut convexified_after, iterations) {
+                if let Some(status) =
+                    fall_back(problem, options, &mut convexified_after, iterations)
+                {
                     break status;
                 }
                 (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
             }
         };
+
+        // Failed line searches raise μ without moving the iterate, so a
+        // solve that ends on them (`NoProgress`, or the iteration cap) would
+        // return gains damped to nothing: at the seed's optimum with a zero
+        // tolerance, μ reached 4e18 and max |K| 6e-11, and from a perturbed
+        // start the closed loop missed the goal by as much as the open loop.
+        // The least regularised gains about the iterate are returned
+        // instead: the undamped Riccati gains where `Q_uu` is positive
+        // definite without μ, else those of the iterate's first pass (the
+        // same derivatives and μ, so it succeeds again unless the budget
+        // runs out; a failed pass leaves the gains as they were).
+        if matches!(status, Status::NoProgress | Status::MaxIterations) && gains_current {
+            let first = iterate_mu.filter(|&first| first > 0.0);
+            for mu in std::iter::once(0.0).chain(first) {
+                if mu >= gains_mu {
+                    break;
+                }
+                if self.backward(mu, &interrupted).is_ok() {
+                    gains_mu = mu;
+                    break;
+                }
+            }
+        }
 
         Ok(Summary {
             status,
@@ -1039,12 +1091,18 @@ fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
 /// with the convex expansion: the switch is recorded in `convexified_after`
 /// and `None` returned, and the caller restarts μ. Otherwise nothing is left
 /// to try, and the solve ends with [`Status::NoProgress`].
-fn fall_back(
+fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
+    problem: &Problem<D, C, NX>,
     options: &Options,
     convexified_after: &mut Option<usize>,
     iterations: usize,
 ) -> Option<Status> {
-    if !options.convex_fallback || convexified_after.is_some() {
+    // A cost with nothing to convexify would only repeat what just failed
+    // (and report a fallback that changed nothing).
+    if !options.convex_fallback
+        || convexified_after.is_some()
+        || !problem.cost.has_convex_approximation()
+    {
         return Some(Status::NoProgress);
     }
     *convexified_after = Some(iterations);

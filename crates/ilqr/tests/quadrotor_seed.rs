@@ -145,6 +145,65 @@ fn feedback_gains_correct_a_perturbed_start() {
     }
 }
 
+/// How far the closed loop `u = ū + K(x − x̄)` and the open loop `ū` end
+/// from the goal, started 0.3 m east and 0.2 m south of `x0`.
+fn closed_and_open_miss(problem: &Seed, solver: &Solver<6, 2>) -> (f64, f64) {
+    let (xs, us, ks) = (solver.states(), solver.controls(), solver.feedback());
+    let x0 = problem.x0 + SVector::from([0.3, -0.2, 0.0, 0.0, 0.0, 0.0]);
+    let (mut open, mut closed) = (x0, x0);
+    for k in 0..problem.horizon {
+        open = problem.dynamics.step(&open, &us[k]);
+        closed = problem
+            .dynamics
+            .step(&closed, &(us[k] + ks[k] * (closed - xs[k])));
+    }
+    ((closed - goal()).norm(), (open - goal()).norm())
+}
+
+/// A solve that ends on failed line searches returns its iterate's least
+/// regularised gains, not the last pass's. With a zero tolerance the seed
+/// reaches its optimum, every line search then fails on round-off, and μ
+/// climbs past its maximum (twice: with the exact Hessian, then after the
+/// convex fallback), so the last pass ran at μ ≈ 4e18: `K` was 6e-11 at
+/// most, and from a perturbed start the "closed loop" missed the goal by
+/// the same 1.4 m as the open loop.
+#[test]
+fn a_solve_ended_by_failed_line_searches_returns_useful_gains() {
+    let problem = seed_problem(100, 0.05);
+    let options = Options {
+        tolerance: 0.0,
+        ..Options::default()
+    };
+    let (solver, s) = solve_problem(&problem, &options);
+    assert_eq!(s.status, Status::NoProgress, "{s:?}");
+    assert!((s.cost - SEED_OPTIMUM).abs() < 1e-3, "{s:?}");
+    assert!(s.has_gains && !s.gains_about_previous_iterate, "{s:?}");
+    assert!(s.gains_regularization <= options.mu_init, "{s:?}");
+    let (closed, open) = closed_and_open_miss(&problem, &solver);
+    assert!(
+        closed < 0.1 * open,
+        "closed loop misses by {closed}, open loop by {open}"
+    );
+}
+
+/// The convex fallback is skipped where the cost has nothing to convexify
+/// (no obstacle): it would rerun what just failed and report a fallback
+/// that changed nothing.
+#[test]
+fn a_cost_without_obstacles_does_not_fall_back() {
+    let mut problem = seed_problem(100, 0.05);
+    problem.cost = tracking(goal(), 1.0, 0.1, 50000.0);
+    let options = Options {
+        tolerance: 0.0,
+        ..Options::default()
+    };
+    let (solver, s) = solve_problem(&problem, &options);
+    assert_eq!(s.status, Status::NoProgress, "{s:?}");
+    assert_eq!(s.convexified_after, None, "{s:?}");
+    let (closed, open) = closed_and_open_miss(&problem, &solver);
+    assert!(closed < 0.1 * open, "closed {closed}, open {open}");
+}
+
 #[test]
 fn max_iterations_stops_early_with_a_consistent_trajectory() {
     let (solver, s) = solve_with(&Options {
@@ -731,17 +790,23 @@ fn the_expected_reduction_is_the_models_at_the_step_taken() {
 /// The trace's `feedforward_norm` is the documented mean over knots of
 /// `max_i |d_i| / (|ū_i| + 1)`: iteration 1's row, from the first pass
 /// about the hover guess, matches it recomputed from that pass's `d`
-/// (which a solve with `max_iterations: 0` returns).
+/// (which a solve with `max_iterations: 0` returns). Both start at μ = 0,
+/// since a solve stopped by the cap returns its least regularised gains.
 #[test]
 fn the_feedforward_norm_is_the_documented_mean() {
     let problem = seed_problem(100, 0.05);
-    let (first_pass, _) = solve_problem(
+    let undamped = Options {
+        mu_init: 0.0,
+        ..Options::default()
+    };
+    let (first_pass, s) = solve_problem(
         &problem,
         &Options {
             max_iterations: 0,
-            ..Options::default()
+            ..undamped.clone()
         },
     );
+    assert_eq!(s.gains_regularization, 0.0, "{s:?}");
     let guess = hover(problem.horizon);
     let mean = first_pass
         .feedforward()
@@ -754,8 +819,9 @@ fn the_feedforward_norm_is_the_documented_mean() {
         })
         .sum::<f64>()
         / problem.horizon as f64;
-    let (solver, _) = solve_problem(&problem, &Options::default());
+    let (solver, _) = solve_problem(&problem, &undamped);
     let row = solver.trace()[0];
+    assert_eq!(row.regularization, 0.0);
     assert!(mean > 0.0);
     assert!(
         (row.feedforward_norm - mean).abs() <= 1e-12 * mean,
