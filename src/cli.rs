@@ -532,7 +532,12 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
     }
     if let Some(k) = r.convexified_after_iteration {
         s += &format!(
-            "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20)\n"
+            "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20); {}\n",
+            if r.convex_model_at_end == Some(true) {
+                "the result rests on the convex model"
+            } else {
+                "the exact Hessian took over again"
+            }
         );
     }
     s += &format!("solve time       {:.3} ms\n", r.solve_time_ms);

@@ -114,12 +114,21 @@ pub struct SolveResult {
     /// indefinite, or no step the line search accepts: obstacles' negative
     /// curvature piled up over a long horizon, a flight of 200 s or more,
     /// or steps of seconds), and the solve went on with the obstacles'
-    /// curvature across their radial direction dropped. A `converged` after
-    /// that means a stationary point of the true cost whose second-order
-    /// condition was not checked; the gains come from the convex model.
+    /// curvature across their radial direction dropped. Where the convex
+    /// model converges, the solve goes back to the exact Hessian to check
+    /// that point (the convex model's larger curvature can under-predict
+    /// what a step gains): see `convex_model_at_end`.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false, minimum = 0)]
     pub convexified_after_iteration: Option<usize>,
+    /// Present with `convexified_after_iteration`. True: the gains come from
+    /// the convex model (the solve ended on it, or the exact Hessian could
+    /// complete no backward pass about its minimum), and a `converged` is a
+    /// stationary point whose second-order condition was not checked.
+    /// False: the exact Hessian took over again and gave the gains.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub convex_model_at_end: Option<bool>,
     /// Time spent solving, in ms.
     pub solve_time_ms: f64,
     /// Time spent waiting for a worker, in ms (0 outside the service).
@@ -339,6 +348,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         gains,
         trace,
         convexified_after_iteration: summary.convexified_after,
+        convex_model_at_end: summary.convexified_after.map(|_| summary.gains_convex),
         solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })

@@ -40,16 +40,19 @@ def test_seed_problem_converges(seed_result: SolveResult) -> None:
     assert result.states[0] == [5.0, 0.0, 0.0, 0.0, 0.0, 0.0]
     assert len(result.closest_approach) == 1 and result.closest_approach[0] > 0
     assert result.convexified_after_iteration is None
+    assert result.convex_model_at_end is None
 
 
 def test_a_long_flight_reports_the_convex_fallback(client: Client) -> None:
     # 200 s from a guess a hair above hover: the exact Hessian gets nowhere
-    # after 2 iterations, the convex model of the cost takes over.
+    # after 2 iterations, the convex model of the cost takes over, and the
+    # exact Hessian confirms the minimum it finds.
     result = client.solve(
         {"horizon": 4000, "initial_controls": [[4.9051, 4.9051]] * 4000, "output": {"trace": False}}
     )
     assert result.status == "converged"
     assert result.convexified_after_iteration == 2
+    assert result.convex_model_at_end is False
     assert result.cost < 0.05 * result.initial_cost
 
 

@@ -21,6 +21,10 @@
 //!   reduction is at least `acceptance` times the reduction the quadratic model
 //!   predicts, `ΔV(α) = −(α Σ dᵀQ_u + ½ α² Σ dᵀQ_uu d)`.
 //! * **Non-finite rollouts are rejected** as if their cost were +∞.
+//! * **A convex fallback** where no μ helps: the obstacles' negative
+//!   curvature is dropped from the cost's expansion until that model
+//!   converges, and the exact Hessian then checks its minimum
+//!   ([`Options::convex_fallback`]).
 //!
 //! The driver owns termination: it checks cancellation and the time budget
 //! every iteration and every 128 knots inside the linearisation, backward
@@ -153,9 +157,16 @@ pub struct Options {
     /// When μ passes `mu_max`, go on with the cost's convex expansion
     /// ([`Cost::stage_expand_convex`]: the obstacle terms' negative
     /// curvature dropped) instead of ending [`Status::NoProgress`]; μ starts
-    /// again from `mu_init`, and the solve uses the convex expansion to its
-    /// end. Only a solve that would have ended `NoProgress` changes, so the
-    /// seed problem and every problem that converged before are untouched.
+    /// again from `mu_init`. Where the convex expansion converges, the exact
+    /// Hessian takes over again to check that point: its larger curvature
+    /// can under-predict what a step gains (the seed at `dt = 10` with a
+    /// 1e12 obstacle stopped 1.9e-6 above IPOPT's optimum). If the exact
+    /// Hessian cannot move from there at any μ, the convex minimum stands
+    /// (with the convex expansion's gains where no exact pass completed:
+    /// [`Summary::gains_convex`]); if it moves and then gets stuck in turn,
+    /// the convex expansion takes over again. Only a solve that would have
+    /// ended `NoProgress` changes, so the seed problem and every problem
+    /// that converged before are untouched.
     /// Skipped for a cost without a convex approximation
     /// ([`Cost::has_convex_approximation`]: no obstacle), where it would
     /// repeat what just failed.
@@ -278,6 +289,13 @@ pub struct Summary {
     /// cost's convex expansion (see [`Options::convex_fallback`]), or
     /// `None` if it used the exact Hessian throughout.
     pub convexified_after: Option<usize>,
+    /// Whether the gains come from the convex expansion: the solve ended on
+    /// it, or went back to the exact Hessian to check its minimum and found
+    /// no pass to complete there. A `Converged` with gains from the convex
+    /// expansion is a stationary point whose second-order condition was
+    /// not checked. False when the exact Hessian gave the gains, and
+    /// whenever [`Summary::convexified_after`] is `None`.
+    pub gains_convex: bool,
 }
 
 /// Input the solver cannot work with.
@@ -509,18 +527,21 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut has_gains = false;
         let mut gains_current = false;
         let mut gains_mu = 0.0;
+        // Whether the gains come from the convex expansion.
+        let mut gains_convex = false;
         // The μ of the first backward pass that succeeded at the current
         // iterate and expansion: the least regularised gains about it, since
         // μ only grows between accepted steps.
         let mut iterate_mu = None;
         let mut convexified_after = None;
-        // Whether a step was accepted since the fallback to the convex
-        // expansion. Its model cannot tell a minimum from a maximum or a
+        let mut model = Model::Exact;
+        // Whether a step was accepted since the last change of `model`.
+        // The convex expansion cannot tell a minimum from a maximum or a
         // saddle (the curvature that would is what it drops): where it finds
         // nothing to do at once, the exact model had found no descent either
         // (an obstacle's centre held by the guess), and calling that point
         // converged would be false.
-        let mut moved_since_convexified = false;
+        let mut moved = false;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
@@ -532,7 +553,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // pass before the accepted step, are flagged as such.
                 // One copy of the loop per expansion, each without a branch
                 // per knot.
-                let interrupted_at = if convexified_after.is_some() {
+                let interrupted_at = if model == Model::Convex {
                     self.linearize::<true, _, _>(problem, &interrupted)
                 } else {
                     self.linearize::<false, _, _>(problem, &interrupted)
@@ -551,6 +572,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         has_gains = true;
                         gains_current = true;
                         gains_mu = mu;
+                        gains_convex = model == Model::Convex;
                         iterate_mu.get_or_insert(mu);
                         break bw;
                     }
@@ -560,16 +582,17 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     Err(Unfinished::NotPositiveDefinite) => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
-                            if let Some(status) =
-                                fall_back(problem, options, &mut convexified_after, iterations)
-                            {
-                                break 'outer status;
+                            match fall_back(problem, options, &mut model, moved) {
+                                Err(status) => break 'outer status,
+                                Ok(()) => {
+                                    convexified_after = convexified_after.or(Some(iterations))
+                                }
                             }
-                            // A convergence the exact model's last step
-                            // claimed is not carried over: the convex model
-                            // must find it for itself, after a step of its
-                            // own.
-                            (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
+                            // A convergence the last model's last step
+                            // claimed is not carried over: the next model
+                            // must find it for itself.
+                            (mu, delta, stale, converged, moved) =
+                                (options.mu_init, 1.0, true, false, false);
                             continue 'outer;
                         }
                         // Raising μ can take a dozen passes (μ from 1 past
@@ -599,49 +622,57 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // thousandth of its prediction ended a slow descent whose next
             // model predicted 1300 times the tolerance (IPOPT then found the
             // cost 4e-6 lower, at tolerance 1e-9).
-            if converged && mu <= options.mu_converged_max && negligible(&bw) {
-                break Status::Converged;
-            }
-            let stationary = if convexified_after.is_some() && !moved_since_convexified {
-                Status::NoProgress
-            } else {
-                Status::Converged
-            };
-            if negligible(&bw) && mu <= options.mu_min {
-                break stationary;
-            }
-            // The pass at μ = 0 below costs a backward pass: not after the
-            // budget ran out.
-            if let Some(status) = interrupted() {
-                break status;
-            }
-            // The model says even a full step would gain almost nothing. That
-            // is only evidence of a minimum without regularisation: a large μ
-            // shrinks the step, and its predicted gain, wherever the iterate
-            // is. So with μ above μ_min, one more pass at μ = 0 decides. If
-            // Q_uu is positive definite at every knot there, the model is
-            // convex and that pass's prediction is trusted (converged, or a
-            // plain Newton step to take); if not (a maximum or saddle, such
-            // as an obstacle's centre), the gains of the pass at μ are
-            // untouched and the solve goes on as before. Without this, a
-            // solve whose last accepted steps were tiny partial ones kept μ
-            // above μ_min, its line searches then failed on round-off, and
-            // it ended `NoProgress` at a solution converged to 1e-16
-            // (`dt = 10`, no obstacles).
-            if negligible(&bw) && mu > options.mu_min {
-                match self.backward(0.0, &interrupted) {
-                    Ok(unregularised) => {
-                        bw = unregularised;
-                        mu = 0.0;
-                        gains_mu = 0.0;
-                        iterate_mu = Some(0.0);
-                        if negligible(&bw) {
-                            break stationary;
+            let mut minimum = (converged && mu <= options.mu_converged_max && negligible(&bw))
+                || (negligible(&bw) && mu <= options.mu_min);
+            if !minimum {
+                // Once per iteration, and before the pass at μ = 0 below,
+                // which costs a backward pass.
+                if let Some(status) = interrupted() {
+                    break status;
+                }
+                // The model says even a full step would gain almost nothing.
+                // That is only evidence of a minimum without regularisation:
+                // a large μ shrinks the step, and its predicted gain,
+                // wherever the iterate is. So with μ above μ_min, one more
+                // pass at μ = 0 decides. If Q_uu is positive definite at
+                // every knot there, the model is convex and that pass's
+                // prediction is trusted (converged, or a plain Newton step
+                // to take); if not (a maximum or saddle, such as an
+                // obstacle's centre), the gains of the pass at μ are
+                // untouched and the solve goes on as before. Without this, a
+                // solve whose last accepted steps were tiny partial ones kept
+                // μ above μ_min, its line searches then failed on round-off,
+                // and it ended `NoProgress` at a solution converged to 1e-16
+                // (`dt = 10`, no obstacles).
+                if negligible(&bw) && mu > options.mu_min {
+                    match self.backward(0.0, &interrupted) {
+                        Ok(unregularised) => {
+                            bw = unregularised;
+                            mu = 0.0;
+                            gains_mu = 0.0;
+                            gains_convex = model == Model::Convex;
+                            iterate_mu = Some(0.0);
+                            minimum = negligible(&bw);
                         }
+                        // The gains of the pass at μ stay, about this iterate.
+                        Err(Unfinished::Interrupted(status)) => break status,
+                        Err(Unfinished::NotPositiveDefinite) => {}
                     }
-                    // The gains of the pass at μ stay, about this iterate.
-                    Err(Unfinished::Interrupted(status)) => break status,
-                    Err(Unfinished::NotPositiveDefinite) => {}
+                }
+            }
+            if minimum {
+                match (model, moved) {
+                    (Model::Exact | Model::Checking, _) => break Status::Converged,
+                    (Model::Convex, false) => break Status::NoProgress,
+                    // The convex model's minimum may not be the cost's: its
+                    // larger curvature under-predicts what a step gains. The
+                    // exact Hessian checks it, from μ_init.
+                    (Model::Convex, true) => {
+                        model = Model::Checking;
+                        (mu, delta, stale, converged, moved) =
+                            (options.mu_init, 1.0, true, false, false);
+                        continue 'outer;
+                    }
                 }
             }
             if iterations >= options.max_iterations {
@@ -707,7 +738,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         && actual <= options.tolerance * cost.abs();
                     cost = new_cost;
                     accepted = true;
-                    moved_since_convexified = convexified_after.is_some();
+                    moved = true;
                     break;
                 }
             }
@@ -730,12 +761,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             row.elapsed = start.elapsed();
             self.trace.push(row);
             if mu > options.mu_max {
-                if let Some(status) =
-                    fall_back(problem, options, &mut convexified_after, iterations)
-                {
-                    break status;
+                match fall_back(problem, options, &mut model, moved) {
+                    Err(status) => break status,
+                    Ok(()) => convexified_after = convexified_after.or(Some(iterations)),
                 }
-                (mu, delta, stale, converged) = (options.mu_init, 1.0, true, false);
+                (mu, delta, stale, converged, moved) = (options.mu_init, 1.0, true, false, false);
             }
         };
 
@@ -757,6 +787,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 }
                 if self.backward(mu, &interrupted).is_ok() {
                     gains_mu = mu;
+                    gains_convex = model == Model::Convex;
                     break;
                 }
             }
@@ -772,6 +803,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             gains_about_previous_iterate: has_gains && !gains_current,
             gains_regularization: gains_mu,
             convexified_after,
+            gains_convex,
         })
     }
 
@@ -1086,27 +1118,50 @@ fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
     m.iter().all(|v| v.is_finite())
 }
 
-/// μ has passed μ_max. The first time, and with
-/// [`Options::convex_fallback`], the solve goes on from the same iterate
-/// with the convex expansion: the switch is recorded in `convexified_after`
-/// and `None` returned, and the caller restarts μ. Otherwise nothing is left
-/// to try, and the solve ends with [`Status::NoProgress`].
+/// Which expansion of the cost the solve is using.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Model {
+    /// The exact Hessian, from the start.
+    Exact,
+    /// The convex expansion ([`Cost::stage_expand_convex`]), after the exact
+    /// one made no progress at any μ up to `mu_max`.
+    Convex,
+    /// The exact Hessian again, checking a minimum the convex expansion
+    /// found.
+    Checking,
+}
+
+/// μ has passed μ_max under `model`, `moved` telling whether a step was
+/// accepted since it was chosen. `Ok` switches to the convex expansion
+/// ([`Options::convex_fallback`]) and the caller restarts μ:
+///
+/// * from the exact model;
+/// * from the exact model checking a convex minimum, after it moved (it
+///   found the minimum false and then got stuck in turn).
+///
+/// `Err` ends the solve: converged where the check could not move from
+/// the convex minimum at any μ (the exact model sees no descent there
+/// either), no progress otherwise (the convex expansion is stuck too, the
+/// fallback is off, or the cost has nothing to convexify).
 fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
     problem: &Problem<D, C, NX>,
     options: &Options,
-    convexified_after: &mut Option<usize>,
-    iterations: usize,
-) -> Option<Status> {
+    model: &mut Model,
+    moved: bool,
+) -> Result<(), Status> {
+    if *model == Model::Checking && !moved {
+        return Err(Status::Converged);
+    }
     // A cost with nothing to convexify would only repeat what just failed
     // (and report a fallback that changed nothing).
-    if !options.convex_fallback
-        || convexified_after.is_some()
+    if *model == Model::Convex
+        || !options.convex_fallback
         || !problem.cost.has_convex_approximation()
     {
-        return Some(Status::NoProgress);
+        return Err(Status::NoProgress);
     }
-    *convexified_after = Some(iterations);
-    None
+    *model = Model::Convex;
+    Ok(())
 }
 
 /// Tassa's schedule: grow the multiplier Δ, then μ ← max(μ_min, μ·Δ).

@@ -542,8 +542,13 @@ class SolveResult:
             exact Hessian throughout; otherwise the iterations completed when
             it fell back to a convex model of the cost (the exact one left no
             descent at any regularisation, e.g. over a very long horizon).
-            A ``converged`` after that is a stationary point whose
-            second-order condition was not checked.
+            Where the convex model converges, the solve checks that point
+            with the exact Hessian again (see ``convex_model_at_end``).
+        convex_model_at_end: ``None`` without a fallback. ``True`` when the
+            result rests on the convex model (the gains come from it, and a
+            ``converged`` is a stationary point whose second-order condition
+            was not checked); ``False`` when the exact Hessian took over again
+            and the gains and status are its own.
         request_id: The ``x-request-id`` of the answer (not part of equality).
     """
 
@@ -560,6 +565,7 @@ class SolveResult:
     gains: Optional[Gains] = None
     trace: Optional[List[TraceEntry]] = None
     convexified_after_iteration: Optional[int] = None
+    convex_model_at_end: Optional[bool] = None
     request_id: Optional[str] = field(default=None, compare=False)
 
     @classmethod
@@ -577,6 +583,7 @@ class SolveResult:
         gains = data.get("gains")
         trace = data.get("trace")
         convexified = data.get("convexified_after_iteration")
+        convex_at_end = data.get("convex_model_at_end")
         return cls(
             status=status,
             cost=_float(_require(data, "cost", "(result)"), "/cost"),
@@ -594,6 +601,9 @@ class SolveResult:
             ],
             convexified_after_iteration=(
                 None if convexified is None else _int(convexified, "/convexified_after_iteration")
+            ),
+            convex_model_at_end=(
+                None if convex_at_end is None else _bool(convex_at_end, "/convex_model_at_end")
             ),
             request_id=request_id,
         )
