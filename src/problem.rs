@@ -988,7 +988,7 @@ pub const RETRY_BYTES: usize = 1 << 20;
 /// schema's words rather than Rust's.
 fn shape_error(e: serde_path_to_error::Error<serde_json::Error>) -> FieldError {
     let mut pointer = pointer_of(e.path());
-    let mut detail = e.into_inner().to_string();
+    let mut detail = json_words(e.into_inner().to_string());
     // serde names the Rust type of a plain number field.
     if let Some(head) = detail.strip_suffix("expected f64") {
         detail = format!("{head}expected a number");
@@ -1013,6 +1013,53 @@ fn shape_error(e: serde_path_to_error::Error<serde_json::Error>) -> FieldError {
     // make a 1 MB message, written again in the answer's `detail`.
     let detail = elide(detail);
     FieldError { pointer, detail }
+}
+
+/// serde's message in JSON's words: serde names the data model's kinds
+/// ("invalid type: sequence, expected a map"), which a client that sent
+/// an array where an object belongs has to translate. Only the kind that
+/// opens the message and the expectation that closes it are rewritten, so
+/// a quoted key or string that happens to hold such a word is left alone.
+fn json_words(detail: String) -> String {
+    const OPENINGS: [&str; 2] = ["invalid type: ", "invalid value: "];
+    // serde's `Unexpected` kinds and how JSON names them; a number or a
+    // boolean comes with its value in backquotes, which JSON does not use.
+    const KINDS: [(&str, &str); 3] = [
+        ("sequence,", "array,"),
+        ("map,", "object,"),
+        ("unit value,", "null,"),
+    ];
+    const QUOTED: [(&str, &str); 3] = [
+        ("integer `", "number "),
+        ("floating point `", "number "),
+        ("boolean `", ""),
+    ];
+    const EXPECTED: [(&str, &str); 2] = [
+        ("expected a sequence", "expected an array"),
+        ("expected a map", "expected an object"),
+    ];
+    let mut out = detail;
+    if let Some(opening) = OPENINGS.iter().find(|o| out.starts_with(**o)) {
+        let (head, rest) = out.split_at(opening.len());
+        let rest = if let Some((serde, json)) = KINDS.iter().find(|(k, _)| rest.starts_with(k)) {
+            Some(format!("{json}{}", &rest[serde.len()..]))
+        } else {
+            QUOTED.iter().find_map(|(k, json)| {
+                let value = rest.strip_prefix(k)?;
+                let (value, tail) = value.split_once('`')?;
+                Some(format!("{json}{value}{tail}"))
+            })
+        };
+        if let Some(rest) = rest {
+            out = format!("{head}{rest}");
+        }
+    }
+    for (serde, json) in EXPECTED {
+        if let Some(head) = out.strip_suffix(serde) {
+            out = format!("{head}{json}");
+        }
+    }
+    out
 }
 
 /// Longest message kept whole; see [`elide`].
@@ -1093,7 +1140,7 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
     let root = bytes.iter().find(|b| !b.is_ascii_whitespace());
     if root != Some(&b'{') {
         let kind = match root {
-            Some(b'[') => "sequence",
+            Some(b'[') => "array",
             Some(b'"') => "string",
             _ => "number",
         };

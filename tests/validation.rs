@@ -355,16 +355,16 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         "expected an integer from 1 to the maximum horizon (10000 unless configured lower)";
     for (doc, got, expected) in [
         (json!({"horizon": "x"}), "string \"x\"", HORIZON),
-        (json!({"horizon": -3}), "integer `-3`", HORIZON),
-        (json!({"horizon": 2.5}), "floating point `2.5`", HORIZON),
+        (json!({"horizon": -3}), "number -3", HORIZON),
+        (json!({"horizon": 2.5}), "number 2.5", HORIZON),
         (
             json!({"solver": {"max_iterations": true}}),
-            "boolean `true`",
+            "invalid type: true,",
             "expected an integer from 0 to 10000",
         ),
         (
             json!({"solver": {"max_iterations": -1}}),
-            "integer `-1`",
+            "number -1",
             "expected an integer from 0 to 10000",
         ),
         (
@@ -374,7 +374,7 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         ),
         (
             json!({"solver": {"time_limit_ms": -5}}),
-            "integer `-5`",
+            "number -5",
             "expected a positive integer (ms; a service takes at most 60000 unless configured), or null",
         ),
     ] {
@@ -459,7 +459,7 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
     }
     assert_eq!(
         shape_error(json!({"obstacles": {}})).1,
-        "invalid type: map, expected an array of JSON objects"
+        "invalid type: object, expected an array of JSON objects"
     );
     // ... and errors inside them still point into them.
     assert_eq!(
@@ -492,6 +492,56 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
 fn several_errors_are_reported_together() {
     let errs = errors(&json!({"dt": -1, "horizon": 0, "weights": {"state": [-1, 1, 1, 1, 1, 1]}}));
     assert_eq!(errs, ["/dt", "/horizon", "/weights/state/0"]);
+}
+
+/// Messages name JSON's kinds (array, object, number, true, null), not
+/// serde's data model (sequence, map, integer `5`, boolean `true`): the
+/// reader sent JSON. A quoted string or key that holds such a word is
+/// quoted as sent.
+#[test]
+fn shape_errors_name_json_kinds() {
+    let first = |doc: &[u8]| match parse(doc) {
+        Err(ParseError::Shape(s)) => s.first().detail.clone(),
+        other => panic!(
+            "{}: expected a shape error, got {other:?}",
+            String::from_utf8_lossy(doc)
+        ),
+    };
+    for (doc, detail) in [
+        (&b"[]"[..], "invalid type: array, expected a JSON object"),
+        // Unreadable (beyond f64) inside a root that is not an object.
+        (b"[1e999]", "invalid type: array, expected a JSON object"),
+        (b"5", "invalid type: number 5, expected a JSON object"),
+        (b"true", "invalid type: true, expected a JSON object"),
+        (
+            br#"{"initial_state": {"x": 5}}"#,
+            "invalid type: object, expected an array of length 6",
+        ),
+        (
+            br#"{"initial_controls": {}}"#,
+            "invalid type: object, expected an array",
+        ),
+        (
+            br#"{"weights": []}"#,
+            "invalid type: array, expected a JSON object",
+        ),
+        (br#"{"dt": [1]}"#, "invalid type: array, expected a number"),
+        (
+            br#"{"output": {"gains": 1}}"#,
+            "invalid type: number 1, expected a boolean",
+        ),
+        (
+            br#"{"horizon": 1.5}"#,
+            "invalid value: number 1.5, expected an integer from 1 to the maximum horizon \
+             (10000 unless configured lower)",
+        ),
+        (
+            br#"{"dt": "sequence, map"}"#,
+            r#"invalid type: string "sequence, map", expected a number"#,
+        ),
+    ] {
+        assert_eq!(first(doc), detail, "{}", String::from_utf8_lossy(doc));
+    }
 }
 
 #[test]
