@@ -1,5 +1,6 @@
-//! The command line: `serve` (the default), `solve`, `openapi` and
-//! `healthcheck`. Each subcommand is a few lines over the library.
+//! The command line: `serve` (the default: its flags work without the
+//! subcommand too), `solve`, `openapi` and `healthcheck`. Each subcommand
+//! is a few lines over the library.
 
 use std::io::{Read, Write};
 use std::path::PathBuf;
@@ -14,16 +15,31 @@ use crate::server::{self, Config};
 use crate::solve::{SolveResult, solve};
 
 /// Trajectory optimisation with iLQR, served over HTTP.
+///
+/// With no subcommand the binary serves, taking the flags of `serve`
+/// (`ilqr-service --bind 127.0.0.1:9000`); they cannot be combined with
+/// a subcommand.
 #[derive(Debug, Parser)]
-#[command(name = "ilqr-service", version, about)]
+#[command(
+    name = "ilqr-service",
+    version,
+    about,
+    long_about,
+    args_conflicts_with_subcommands = true
+)]
 pub struct Cli {
+    /// The settings of serving without a subcommand. Before a subcommand
+    /// they are not read at all (see [`parse_or_exit`]).
+    #[command(flatten)]
+    serve: Config,
     #[command(subcommand)]
     command: Option<Command>,
 }
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Serve the HTTP API (what the binary does with no subcommand).
+    /// Serve the HTTP API (also what the binary does with no subcommand,
+    /// with the same flags).
     Serve(Config),
     /// Solve one problem file and print a summary.
     ///
@@ -60,10 +76,10 @@ enum Command {
 /// failure, 2 on invalid input and 130 or 143 for a `solve` stopped by
 /// SIGINT or SIGTERM.
 pub fn main() -> ExitCode {
-    match parse_or_exit(std::env::args_os().collect()).command {
-        // No subcommand means `serve`, with its settings from the
-        // environment (so no flag can be on the command line).
-        None => serve(Config::from_env().unwrap_or_else(|e| name_env_source(e, []).exit())),
+    let cli = parse_or_exit(std::env::args_os().collect());
+    match cli.command {
+        // No subcommand means `serve`, with the flags given at the top level.
+        None => serve(cli.serve),
         Some(Command::Serve(config)) => serve(config),
         Some(Command::Solve { problem, output }) => solve_file(problem, output),
         Some(Command::Openapi) => {
@@ -86,8 +102,31 @@ pub fn main() -> ExitCode {
     }
 }
 
+/// Parse the command line, or exit with clap's message (the source of a
+/// bad value named, see [`name_env_source`]).
+///
+/// Two adjustments to clap: an `ILQR_*` variable that is set but empty
+/// counts as unset (see [`server::unset_empty_env`]); and the top-level
+/// serve settings do not read their variables when a subcommand is run,
+/// since clap reads a command's variables after its subcommand's, so a
+/// bad `ILQR_WORKERS` would otherwise stop `solve` and `healthcheck`,
+/// which have no use for it.
 fn parse_or_exit(args: Vec<std::ffi::OsString>) -> Cli {
-    Cli::try_parse_from(&args).unwrap_or_else(|e| name_env_source(e, args).exit())
+    use clap::{CommandFactory, FromArgMatches};
+    let mut cmd = server::unset_empty_env(Cli::command());
+    if subcommand_in(&args, &cmd).is_some() {
+        cmd = cmd.mut_args(|arg| arg.env(None));
+    }
+    cmd.try_get_matches_from_mut(&args)
+        .and_then(|matches| Cli::from_arg_matches(&matches))
+        .unwrap_or_else(|e| name_env_source(e.format(&mut cmd), args).exit())
+}
+
+/// The subcommand `args` run, if any: with the top-level flags in conflict
+/// with subcommands, it can only be the first argument.
+fn subcommand_in<'a>(args: &'a [std::ffi::OsString], cmd: &clap::Command) -> Option<&'a str> {
+    let first = args.get(1)?.to_str()?;
+    (first == "help" || cmd.find_subcommand(first).is_some()).then_some(first)
 }
 
 /// A flag's value that came from its environment variable is reported
@@ -100,24 +139,21 @@ fn name_env_source(
 ) -> clap::Error {
     use clap::CommandFactory;
     use clap::error::{ContextKind, ContextValue, ErrorKind};
-    let args: Vec<std::ffi::OsString> = args.into_iter().collect();
-    let original_len = args.len();
+    let os_args: Vec<std::ffi::OsString> = args.into_iter().collect();
     // clap says only "invalid UTF-8 was detected in one or more arguments";
     // when the command line is clean, the culprit is a variable, a place a
     // user would not look.
-    let args: Vec<&str> = args.iter().filter_map(|a| a.to_str()).collect();
-    if err.kind() == ErrorKind::InvalidUtf8 && args.len() == original_len {
-        // The variables clap read: those of the subcommand being run (the
-        // first word that is not a flag; none means `serve`) whose flag is
-        // not on the command line.
+    let args: Vec<&str> = os_args.iter().filter_map(|a| a.to_str()).collect();
+    if err.kind() == ErrorKind::InvalidUtf8 && args.len() == os_args.len() {
+        // The variables clap read: those of the subcommand being run (none
+        // means the top level's, which are `serve`'s) whose flag is not on
+        // the command line.
         let cmd = Cli::command();
-        let sub = args
-            .iter()
-            .skip(1)
-            .find(|a| !a.starts_with('-'))
-            .map_or("serve", |a| *a);
-        let bad: Vec<&str> = cmd
-            .find_subcommand(sub)
+        let runs = match subcommand_in(&os_args, &cmd) {
+            Some(sub) => cmd.find_subcommand(sub),
+            None => Some(&cmd),
+        };
+        let bad: Vec<&str> = runs
             .into_iter()
             .flat_map(clap::Command::get_arguments)
             .filter(|a| {

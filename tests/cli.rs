@@ -45,7 +45,28 @@ fn serve_with(args: &[&str]) -> (Option<i32>, String) {
 #[test]
 fn settings_out_of_range_are_rejected_before_serving() {
     for (args, says) in [
-        (&["--workers", "0"][..], "--workers"),
+        // Each range in words, with the value given: these said "number
+        // would be zero for non-zero type" and "0 is not in
+        // 1..18446744073709551615".
+        (
+            &["--workers", "0"][..],
+            "invalid value '0' for '--workers <WORKERS>': expected 1 to 1024 threads, got 0",
+        ),
+        (
+            &["--runtime-threads", "0"],
+            "invalid value '0' for '--runtime-threads <RUNTIME_THREADS>': \
+             expected 1 to 1024 threads, got 0",
+        ),
+        (
+            &["--retry-after-secs", "0"],
+            "invalid value '0' for '--retry-after-secs <RETRY_AFTER_SECS>': \
+             expected at least 1 second, got 0",
+        ),
+        (
+            &["--gzip-level", "10"],
+            "invalid value '10' for '--gzip-level <GZIP_LEVEL>': \
+             expected 0 (no compression) to 9, got 10",
+        ),
         (
             &["--max-horizon", "99"],
             "expected an integer from 100 (the default problem's horizon) to 10000, got 99",
@@ -60,7 +81,6 @@ fn settings_out_of_range_are_rejected_before_serving() {
         ),
         (&["--default-time-limit-ms", "0"], "--default-time-limit-ms"),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
-        (&["--retry-after-secs", "0"], "--retry-after-secs"),
         // These passed, logged "listening", then failed: every connection
         // panicked in hyper's timer, or the pool reserved the whole queue.
         (
@@ -75,11 +95,12 @@ fn settings_out_of_range_are_rejected_before_serving() {
         ),
         (
             &["--workers", "5000"],
-            "--workers / ILQR_WORKERS: expected 1 to 1024 threads, got 5000",
+            "invalid value '5000' for '--workers <WORKERS>': expected 1 to 1024 threads, got 5000",
         ),
         (
             &["--runtime-threads", "1025"],
-            "--runtime-threads / ILQR_RUNTIME_THREADS: expected 1 to 1024 threads, got 1025",
+            "invalid value '1025' for '--runtime-threads <RUNTIME_THREADS>': \
+             expected 1 to 1024 threads, got 1025",
         ),
         (
             &["--default-time-limit-ms", "70000"],
@@ -148,16 +169,33 @@ fn without_ilqr_env() -> Command {
 #[test]
 fn a_bad_value_names_where_it_came_from() {
     type Case<'a> = (&'a [&'a str], &'a [(&'a str, &'a str)], &'a str);
-    let cases: [Case; 5] = [
+    let cases: [Case; 8] = [
         (
             &[],
             &[("ILQR_RUNTIME_THREADS", "0")],
-            "invalid value '0' for 'ILQR_RUNTIME_THREADS': number would be zero",
+            "invalid value '0' for 'ILQR_RUNTIME_THREADS': expected 1 to 1024 threads, got 0",
         ),
         (
             &["serve"],
             &[("ILQR_WORKERS", "abc")],
-            "invalid value 'abc' for 'ILQR_WORKERS': invalid digit found in string",
+            "invalid value 'abc' for 'ILQR_WORKERS': expected 1 to 1024 threads, got \"abc\"",
+        ),
+        (
+            &[],
+            &[("ILQR_RETRY_AFTER_SECS", "0")],
+            "invalid value '0' for 'ILQR_RETRY_AFTER_SECS': expected at least 1 second, got 0",
+        ),
+        // Serve flags at the top level, without `serve`: the flag given is
+        // named as such, and a variable beside it as a variable.
+        (
+            &["--workers", "0"],
+            &[("ILQR_WORKERS", "2")],
+            "invalid value '0' for '--workers <WORKERS>'",
+        ),
+        (
+            &["--workers", "2"],
+            &[("ILQR_GZIP_LEVEL", "12")],
+            "invalid value '12' for 'ILQR_GZIP_LEVEL': expected 0 (no compression) to 9, got 12",
         ),
         (
             &["serve"],
@@ -254,6 +292,99 @@ fn a_variable_that_is_not_utf8_is_named() {
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert_eq!(out.status.code(), Some(2), "{stderr}");
     assert!(stderr.contains("invalid UTF-8 was detected"), "{stderr}");
+}
+
+/// The serve flags work without `serve` (the README's `cargo run
+/// --release -- --bind ...`, refused as "unexpected argument" before),
+/// but not before another subcommand; and the serve settings' variables
+/// are read only by serving, so a bad one does not stop `solve`,
+/// `openapi` or `healthcheck`.
+#[test]
+fn serve_flags_work_at_the_top_level() {
+    let (_server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["--bind", bind, "--workers", "1"])
+            .env_remove("ILQR_BIND")
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    let out = without_ilqr_env()
+        .args(["healthcheck", "--addr", &bind])
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
+
+    let out = without_ilqr_env()
+        .args(["--workers", "1", "openapi"])
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert_eq!(out.status.code(), Some(2), "{stderr}");
+    assert!(
+        stderr.contains("the subcommand 'openapi' cannot be used with '--workers <WORKERS>'"),
+        "{stderr}"
+    );
+
+    for args in [
+        &["openapi"][..],
+        &["solve", "examples/seed.json"],
+        &["help"],
+    ] {
+        let out = without_ilqr_env()
+            .args(args)
+            .env("ILQR_WORKERS", "0")
+            .env("ILQR_BIND", "nowhere")
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(0), "{args:?}: {stderr}");
+    }
+}
+
+/// A variable set but empty (`ILQR_WORKERS=`, as compose files and
+/// manifests write "unset") is read as unset: the server starts with the
+/// defaults instead of failing with "cannot parse integer from empty
+/// string", with and without `serve`.
+#[test]
+fn an_empty_variable_counts_as_unset() {
+    const EMPTY: [&str; 12] = [
+        "ILQR_WORKERS",
+        "ILQR_RUNTIME_THREADS",
+        "ILQR_QUEUE_CAPACITY",
+        "ILQR_DEFAULT_TIME_LIMIT_MS",
+        "ILQR_MAX_TIME_LIMIT_MS",
+        "ILQR_MAX_HORIZON",
+        "ILQR_MAX_BODY_BYTES",
+        "ILQR_SHUTDOWN_GRACE_SECS",
+        "ILQR_RETRY_AFTER_SECS",
+        "ILQR_READ_TIMEOUT_SECS",
+        "ILQR_GZIP_LEVEL",
+        "ILQR_LOG_FORMAT",
+    ];
+    for serve in [&[][..], &["serve"]] {
+        let (_server, _) = serve_on_free_port(|cmd, bind| {
+            cmd.args(serve)
+                .args(["--bind", bind])
+                .stdout(std::process::Stdio::null())
+                .stderr(std::process::Stdio::null());
+            for name in EMPTY {
+                cmd.env(name, "");
+            }
+        });
+    }
+    // `healthcheck` with an empty `ILQR_HEALTHCHECK_ADDR` follows
+    // ILQR_BIND, as with none.
+    let (_server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["--bind", bind])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    let out = without_ilqr_env()
+        .arg("healthcheck")
+        .env("ILQR_HEALTHCHECK_ADDR", "")
+        .env("ILQR_BIND", &bind)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
 }
 
 /// The health check's 2 s cover connect, write and every read together: a
@@ -432,6 +563,14 @@ fn a_config_built_in_code_is_checked_too() {
         },
         Config {
             queue_capacity: 65_537,
+            ..Config::default()
+        },
+        Config {
+            retry_after_secs: 0,
+            ..Config::default()
+        },
+        Config {
+            gzip_level: 10,
             ..Config::default()
         },
     ] {

@@ -77,6 +77,61 @@ fn parse_bind(value: &str) -> Result<SocketAddr, String> {
     })
 }
 
+/// A whole number from `min` to `max`, or an error that says the range
+/// (`expected`) and what was given: clap's own parsers say "number would
+/// be zero for non-zero type", "0 is not in 1..18446744073709551615" or
+/// "invalid digit found in string", in Rust's terms. Clap puts the flag or
+/// (see `cli::name_env_source`) the variable in front.
+fn whole_number(value: &str, min: u64, max: u64, expected: &str) -> Result<u64, String> {
+    match value.parse::<u64>() {
+        Ok(n) if (min..=max).contains(&n) => Ok(n),
+        Ok(n) => Err(format!("expected {expected}, got {n}")),
+        Err(_) => Err(format!("expected {expected}, got {value:?}")),
+    }
+}
+
+/// `--workers`, `--runtime-threads`: 1 to [`MAX_THREADS`] (the upper
+/// bound is checked here too, so the message is the one
+/// [`Config::check`] gives a `Config` built in code).
+fn parse_threads(value: &str) -> Result<std::num::NonZeroUsize, String> {
+    let expected = format!("1 to {MAX_THREADS} threads");
+    let n = whole_number(value, 1, MAX_THREADS as u64, &expected)?;
+    usize::try_from(n)
+        .ok()
+        .and_then(std::num::NonZeroUsize::new)
+        .ok_or_else(|| format!("expected {expected}, got {value:?}"))
+}
+
+/// `--retry-after-secs`: at least 1 (`Retry-After: 0` invites an
+/// immediate retry into the same full queue).
+fn parse_retry_after(value: &str) -> Result<u64, String> {
+    whole_number(value, 1, u64::MAX, "at least 1 second")
+}
+
+/// `--gzip-level`: 0 (off) to 9.
+fn parse_gzip_level(value: &str) -> Result<u32, String> {
+    whole_number(value, 0, 9, "0 (no compression) to 9").map(|n| n as u32)
+}
+
+/// `cmd` with every argument whose environment variable is set but empty
+/// read as if the variable were unset. Compose files and Kubernetes
+/// manifests write `ILQR_WORKERS=` (or `value: ""`) to mean "not set",
+/// while clap takes the empty string as the value and fails to parse it
+/// ("cannot parse integer from empty string"), and has no setting to do
+/// otherwise. Clap reads a variable when the argument is built, so taking
+/// the variable off the argument (rather than out of the process's
+/// environment, which needs `unsafe` in Rust 2024) is enough.
+pub(crate) fn unset_empty_env(cmd: clap::Command) -> clap::Command {
+    cmd.mut_args(|arg| {
+        let empty = arg
+            .get_env()
+            .and_then(std::env::var_os)
+            .is_some_and(|v| v.is_empty());
+        if empty { arg.env(None) } else { arg }
+    })
+    .mut_subcommands(unset_empty_env)
+}
+
 /// Service configuration: flags, each also read from an environment variable.
 #[derive(Debug, Clone, clap::Args)]
 pub struct Config {
@@ -87,7 +142,7 @@ pub struct Config {
     #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080", value_parser = parse_bind)]
     pub bind: SocketAddr,
     /// Solver threads, 1 to 1024 (default: the available cores).
-    #[arg(long, env = "ILQR_WORKERS")]
+    #[arg(long, env = "ILQR_WORKERS", value_parser = parse_threads)]
     pub workers: Option<std::num::NonZeroUsize>,
     /// Async runtime threads, which accept connections, parse and validate
     /// requests and write answers; solves never run on them (default: cores
@@ -95,7 +150,7 @@ pub struct Config {
     /// microseconds next to a solve's milliseconds; on 2 cores a second
     /// runtime thread doubled the context switches per request and added
     /// ~25 µs of kernel time to each (bench/server_cost.sh). At most 1024.
-    #[arg(long, env = "ILQR_RUNTIME_THREADS")]
+    #[arg(long, env = "ILQR_RUNTIME_THREADS", value_parser = parse_threads)]
     pub runtime_threads: Option<std::num::NonZeroUsize>,
     /// Solves that may wait for a worker before new ones get 503, at most
     /// 65536.
@@ -123,9 +178,9 @@ pub struct Config {
     /// cancelled.
     #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10)]
     pub shutdown_grace_secs: u64,
-    /// `Retry-After` sent with 503 overload answers, in seconds.
+    /// `Retry-After` sent with 503 overload answers, in seconds, at least 1.
     #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1,
-          value_parser = clap::value_parser!(u64).range(1..))]
+          value_parser = parse_retry_after)]
     pub retry_after_secs: u64,
     /// Seconds a client gets to send a request's headers, and again its
     /// body. A connection that stalls longer is closed (headers) or answered
@@ -139,7 +194,7 @@ pub struct Config {
     /// takes ~0.6 ms to compress at 3 (2.1×), more than its 0.45 ms solve:
     /// where clients sit on the same host or a fast LAN, 0 buys throughput.
     #[arg(long, env = "ILQR_GZIP_LEVEL", default_value_t = 3,
-          value_parser = clap::value_parser!(u32).range(0..=9))]
+          value_parser = parse_gzip_level)]
     pub gzip_level: u32,
     /// Log format.
     #[arg(long, env = "ILQR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
@@ -168,15 +223,15 @@ impl Default for Config {
 
 impl Config {
     /// What `serve` gets with no flags: each setting from its environment
-    /// variable, else its default.
+    /// variable (an empty one counts as unset), else its default.
     ///
     /// # Errors
     ///
     /// Clap's error for a variable whose value its flag rejects.
     pub fn from_env() -> Result<Self, clap::Error> {
-        let matches = <Self as clap::Args>::augment_args(
+        let matches = unset_empty_env(<Self as clap::Args>::augment_args(
             clap::Command::new("serve").bin_name("ilqr-service serve"),
-        )
+        ))
         .try_get_matches_from(["serve"])?;
         <Self as clap::FromArgMatches>::from_arg_matches(&matches)
     }
@@ -243,6 +298,20 @@ impl Config {
                     "{name}: expected 1 to {MAX_THREADS} threads, got {n}"
                 ));
             }
+        }
+        // The flags' parsers refuse these too; a `Config` built in code
+        // gets the same words.
+        if self.retry_after_secs == 0 {
+            return Err(
+                "--retry-after-secs / ILQR_RETRY_AFTER_SECS: expected at least 1 second, got 0"
+                    .into(),
+            );
+        }
+        if self.gzip_level > 9 {
+            return Err(format!(
+                "--gzip-level / ILQR_GZIP_LEVEL: expected 0 (no compression) to 9, got {}",
+                self.gzip_level
+            ));
         }
         if !(1..=MAX_READ_TIMEOUT_SECS).contains(&self.read_timeout_secs) {
             return Err(format!(
