@@ -48,7 +48,8 @@ enum Command {
     /// before the solve has stopped quits at once, writing nothing. Exit
     /// codes: 0 solved (whatever the status), 1 a runtime failure (an
     /// unreadable problem file, an unwritable output), 2 an invalid
-    /// problem, 130 or 143 interrupted.
+    /// problem, 130 or 143 interrupted. A reader that closes standard
+    /// output early (`-o - | head`) ends the command quietly (exit code 0).
     Solve {
         /// Problem JSON; `-` reads standard input. Omitted: the seed problem.
         problem: Option<PathBuf>,
@@ -302,7 +303,15 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
     if json_to_stdout {
         eprint!("{text}");
     } else {
-        print!("{text}");
+        // Not `print!`, which panics when the reader has gone (`| head
+        // -1`); then the output file, if any, is still written.
+        let printed = write!(std::io::stdout().lock(), "{text}");
+        if let Err(e) = printed.and_then(|()| std::io::stdout().flush())
+            && !reader_left(&e)
+        {
+            eprintln!("error: cannot write the summary to standard output: {e}");
+            return ExitCode::FAILURE;
+        }
     }
     if let Some(path) = output.as_ref() {
         let json = match serde_json::to_string_pretty(&result) {
@@ -316,9 +325,16 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
             None => writeln!(std::io::stdout(), "{json}"),
             Some(target) => target.write_line(&json),
         };
-        if let Err(e) = written {
-            eprintln!("error: cannot write {}: {e}", path.display());
-            return ExitCode::FAILURE;
+        match written {
+            Ok(()) => {}
+            // A reader that took what it wanted and left (`-o - | head`)
+            // is how a pipeline ends, not a failure: end quietly, as a
+            // Unix filter does.
+            Err(e) if reader_left(&e) => {}
+            Err(e) => {
+                eprintln!("error: cannot write {}: {e}", path.display());
+                return ExitCode::FAILURE;
+            }
         }
     }
     if interrupted {
@@ -328,6 +344,13 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         return ExitCode::from(signals.code.load(Ordering::SeqCst));
     }
     ExitCode::SUCCESS
+}
+
+/// Whether a write failed because the reading end of a pipe (standard
+/// output into `head`, a named pipe) was closed. Rust ignores SIGPIPE, so
+/// this comes back as an error instead of ending the process.
+fn reader_left(e: &std::io::Error) -> bool {
+    e.kind() == std::io::ErrorKind::BrokenPipe
 }
 
 /// What SIGINT and SIGTERM do to `solve`. The first one during the solve
@@ -500,7 +523,16 @@ fn read_problem(path: Option<&PathBuf>) -> Result<ProblemSpec, ReadError> {
     let limits = Limits::default();
     let spec = parse(&bytes).map_err(|e| {
         ReadError::Invalid(match e {
-            ParseError::Syntax(msg) => vec![format!("not valid JSON: {msg}")],
+            // Named like a read error: the line and column are no help
+            // without the file (a script may solve many).
+            ParseError::Syntax(msg) => vec![format!(
+                "{} is not valid JSON: {msg}",
+                path.map_or("the problem".into(), |p| if p.as_os_str() == "-" {
+                    "standard input".into()
+                } else {
+                    p.display().to_string()
+                })
+            )],
             ParseError::Shape(shapes) => error_lines(&shapes.with_range_errors(&limits)),
         })
     })?;

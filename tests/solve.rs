@@ -233,6 +233,81 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
     );
 }
 
+/// A problem that is not JSON names its source, as a read error does: the
+/// line and column alone do not say which of a script's files it was.
+#[test]
+fn the_cli_names_the_file_that_is_not_json() {
+    use std::process::Command;
+    let path = std::env::temp_dir().join(format!("ilqr-cli-syntax-{}.json", std::process::id()));
+    std::fs::write(&path, "{\"dt\": }").unwrap();
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .arg("solve")
+        .arg(&path)
+        .output()
+        .unwrap();
+    std::fs::remove_file(&path).unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(
+        String::from_utf8(out.stderr).unwrap(),
+        format!(
+            "error: {} is not valid JSON: expected value at line 1 column 8\n",
+            path.display()
+        )
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["solve", "-"])
+        .stdin(std::fs::File::open("/dev/null").unwrap())
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(2));
+    assert_eq!(
+        String::from_utf8(out.stderr).unwrap(),
+        "error: standard input is not valid JSON: EOF while parsing a value at line 1 column 0\n"
+    );
+}
+
+/// A reader that closes standard output before the answer is written
+/// (`solve -o - | head`) ends the command quietly with exit code 0, as a
+/// Unix filter does: it said "error: cannot write -: Broken pipe" and
+/// exited 1 (and without `-o`, the summary's `print!` panicked). The pipe
+/// is closed before the command starts, so it is closed at every write.
+#[test]
+fn a_closed_stdout_pipe_ends_the_cli_quietly() {
+    use std::process::Command;
+    for args in [
+        &["solve", "examples/seed.json"][..],
+        &["solve", "examples/seed.json", "-o", "-"],
+        &["solve", "examples/seed.json", "-o", "/dev/stdout"],
+    ] {
+        let (reader, writer) = std::io::pipe().unwrap();
+        drop(reader);
+        let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+            .args(args)
+            .stdout(writer)
+            .output()
+            .unwrap();
+        let stderr = String::from_utf8(out.stderr).unwrap();
+        assert_eq!(out.status.code(), Some(0), "{args:?}: {stderr}");
+        assert!(!stderr.contains("error"), "{args:?}: {stderr}");
+        assert!(!stderr.contains("panicked"), "{args:?}: {stderr}");
+    }
+    // The output file is still written when only the summary's reader left.
+    let path = std::env::temp_dir().join(format!("ilqr-cli-pipe-{}.json", std::process::id()));
+    let (reader, writer) = std::io::pipe().unwrap();
+    drop(reader);
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["solve", "examples/seed.json", "-o"])
+        .arg(&path)
+        .stdout(writer)
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
+    let written: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(&path).unwrap()).unwrap();
+    std::fs::remove_file(&path).unwrap();
+    assert_eq!(written["status"], "converged");
+}
+
 /// `-o FILE` is checked before the solve but written only after it: an
 /// unwritable path fails at once, an invalid problem leaves an existing file as it was and creates none, a
 /// solve killed midway leaves nothing behind (through a dangling symlink
