@@ -67,7 +67,9 @@ enum Command {
         /// Default: `ILQR_BIND`, so it follows the server's setting; an
         /// all-interfaces bind is checked on loopback at its port
         /// (`0.0.0.0` on `127.0.0.1`, `[::]` on `[::1]` then `127.0.0.1`),
-        /// and an unset one at `127.0.0.1:8080`.
+        /// and an unset (or empty) one at `127.0.0.1:8080`. An `ILQR_BIND`
+        /// that is not IP:PORT is an error (exit code 1), since the server
+        /// would refuse it too: which address to check is then unknown.
         #[arg(long, env = "ILQR_HEALTHCHECK_ADDR")]
         addr: Option<String>,
     },
@@ -90,7 +92,16 @@ pub fn main() -> ExitCode {
         Some(Command::Healthcheck { addr }) => {
             let checked = match addr {
                 Some(addr) => server::healthcheck(&addr),
-                None => server::healthcheck_any(&local_addrs()),
+                None => match local_addrs() {
+                    Ok(addrs) => server::healthcheck_any(&addrs),
+                    Err(e) => {
+                        eprintln!("error: {e}");
+                        // 1, not the CLI's 2 for bad settings: to a
+                        // container runtime any other code than 1 is not
+                        // "unhealthy" (Docker reserves 2).
+                        return ExitCode::FAILURE;
+                    }
+                },
             };
             match checked {
                 Ok(()) => ExitCode::SUCCESS,
@@ -224,21 +235,36 @@ fn on_command_line(args: &[&str], long: &str) -> bool {
 /// loopback at its port when it binds every interface (`0.0.0.0:8080` →
 /// `127.0.0.1:8080`; `[::]:8080` → `[::1]:8080`, then `127.0.0.1:8080`,
 /// since `[::]` takes IPv4 too and a container may have no IPv6
-/// loopback); `127.0.0.1:8080` when unset or unparsable.
-fn local_addrs() -> Vec<std::net::SocketAddr> {
+/// loopback); `127.0.0.1:8080` when unset or empty, as for the server.
+///
+/// An `ILQR_BIND` that is not IP:PORT is an error naming it: checking
+/// 127.0.0.1:8080 instead, as this once did, reported on some other
+/// service (or on nothing) while saying nothing of the typo.
+fn local_addrs() -> Result<Vec<std::net::SocketAddr>, String> {
     use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
-    let addr = std::env::var("ILQR_BIND")
-        .ok()
-        .and_then(|b| b.parse::<SocketAddr>().ok())
-        .unwrap_or_else(|| SocketAddr::from((Ipv4Addr::LOCALHOST, 8080)));
+    let addr = match std::env::var_os("ILQR_BIND") {
+        Some(bind) if !bind.is_empty() => bind
+            .to_str()
+            .and_then(|b| b.parse::<SocketAddr>().ok())
+            .ok_or_else(|| {
+                // Bounded: a variable can be long, and this is one line.
+                let shown: String = bind.to_string_lossy().chars().take(100).collect();
+                format!(
+                    "ILQR_BIND is {shown:?}, which is not IP:PORT (e.g. 0.0.0.0:8080), so the \
+                     address to check is unknown; fix it, or give the address with --addr or \
+                     ILQR_HEALTHCHECK_ADDR"
+                )
+            })?,
+        _ => SocketAddr::from((Ipv4Addr::LOCALHOST, 8080)),
+    };
     let v4 = SocketAddr::from((Ipv4Addr::LOCALHOST, addr.port()));
-    match addr.ip() {
+    Ok(match addr.ip() {
         IpAddr::V4(ip) if ip.is_unspecified() => vec![v4],
         IpAddr::V6(ip) if ip.is_unspecified() => {
             vec![SocketAddr::from((Ipv6Addr::LOCALHOST, addr.port())), v4]
         }
         _ => vec![addr],
-    }
+    })
 }
 
 fn serve(config: Config) -> ExitCode {

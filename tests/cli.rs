@@ -525,6 +525,29 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
             .stderr(std::process::Stdio::null());
     });
     assert_eq!(check(&[("ILQR_BIND", &other)]), (Some(0), String::new()));
+
+    // An ILQR_BIND that is not IP:PORT is an error naming it and the way
+    // around it, not a check of 127.0.0.1:8080 (which it silently was);
+    // with an address given, it is not read.
+    let (code, stderr) = check(&[("ILQR_BIND", "garbage")]);
+    assert_eq!(code, Some(1), "{stderr}");
+    assert_eq!(
+        stderr,
+        "error: ILQR_BIND is \"garbage\", which is not IP:PORT (e.g. 0.0.0.0:8080), so the \
+         address to check is unknown; fix it, or give the address with --addr or \
+         ILQR_HEALTHCHECK_ADDR\n"
+    );
+    assert_eq!(
+        check(&[("ILQR_BIND", "garbage"), ("ILQR_HEALTHCHECK_ADDR", &bind)]),
+        (Some(0), String::new())
+    );
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["healthcheck", "--addr", &bind])
+        .env("ILQR_BIND", "garbage")
+        .env_remove("ILQR_HEALTHCHECK_ADDR")
+        .output()
+        .unwrap();
+    assert_eq!(out.status.code(), Some(0), "{out:?}");
 }
 
 /// A `Config` built in code gets the same checks: the service refuses to
