@@ -474,6 +474,157 @@ async fn every_error_class_is_a_problem_document() {
     }
 }
 
+/// Each 415 says what was received and what to change: no Content-Type,
+/// a form's (what `curl -d` sends without `-H`), another media type, a
+/// charset other than UTF-8, or a compressed body. They all said "send the
+/// problem as uncompressed UTF-8 JSON ...", whatever the cause. An echoed
+/// header is cut to 100 characters.
+#[tokio::test]
+async fn a_415_says_what_was_received() {
+    let s = Server::default().await;
+    let client = reqwest::Client::new();
+    let post = |headers: &[(&'static str, String)]| {
+        let mut req = client.post(s.url("/solve")).body("{}");
+        for (name, value) in headers {
+            req = req.header(*name, value.clone());
+        }
+        req.send()
+    };
+    let long = format!("text/{}", "a".repeat(5000));
+    for (headers, detail) in [
+        (
+            vec![],
+            "the request has no Content-Type; send the problem as UTF-8 JSON with \
+             `Content-Type: application/json`"
+                .to_owned(),
+        ),
+        (
+            vec![("content-type", "application/x-www-form-urlencoded".into())],
+            "the Content-Type is `application/x-www-form-urlencoded`, a form, which is what \
+             `curl -d` sends unless told otherwise: add -H 'content-type: application/json'"
+                .to_owned(),
+        ),
+        (
+            vec![("content-type", "text/plain; charset=utf-8".into())],
+            "the Content-Type is `text/plain; charset=utf-8`, which is not JSON \
+             (application/json or application/*+json); send the problem as UTF-8 JSON with \
+             `Content-Type: application/json`"
+                .to_owned(),
+        ),
+        (
+            vec![(
+                "content-type",
+                "application/json; charset=\"latin1\"".into(),
+            )],
+            "the Content-Type names the charset `latin1`, but the body is read as UTF-8 JSON \
+             (its only encoding): send UTF-8, with charset=utf-8 or no charset"
+                .to_owned(),
+        ),
+        (
+            vec![
+                ("content-type", "application/json".into()),
+                ("content-encoding", "gzip".into()),
+            ],
+            "the body is compressed (Content-Encoding: `gzip`); send it uncompressed, as this \
+             service reads no compressed requests"
+                .to_owned(),
+        ),
+        (
+            vec![("content-type", long.clone())],
+            format!(
+                "the Content-Type is `{}...`, which is not JSON (application/json or \
+                 application/*+json); send the problem as UTF-8 JSON with \
+                 `Content-Type: application/json`",
+                &long[..100]
+            ),
+        ),
+    ] {
+        let p = problem_of(
+            post(&headers).await.unwrap(),
+            StatusCode::UNSUPPORTED_MEDIA_TYPE,
+        )
+        .await;
+        assert_eq!(p["detail"], detail, "{headers:?}");
+    }
+    // A header value that is not ASCII is shown without its raw bytes.
+    let res = client
+        .post(s.url("/solve"))
+        .header(
+            "content-type",
+            HeaderValue::from_bytes(b"application/\xffjson").unwrap(),
+        )
+        .body("{}")
+        .send()
+        .await
+        .unwrap();
+    let p = problem_of(res, StatusCode::UNSUPPORTED_MEDIA_TYPE).await;
+    assert_eq!(
+        p["detail"],
+        "the Content-Type `application/\u{fffd}json` is not plain ASCII text; send the \
+         problem as UTF-8 JSON with `Content-Type: application/json`"
+    );
+}
+
+/// A 404 echoes the method and path, and names the route a near miss
+/// (a trailing slash, other case) meant; it points at the documentation
+/// in words, since behind a path-prefix proxy a link to `/docs` leaves the
+/// service. A long path is cut to 100 characters.
+#[tokio::test]
+async fn a_404_says_what_was_asked_for_and_what_was_meant() {
+    let s = Server::default().await;
+    const LISTED: &str = "The routes are listed in openapi.json and on the docs/ page, \
+                          both at the service's root.";
+    let client = reqwest::Client::new();
+    let long = format!("/{}", "x".repeat(300));
+    for (method, path, detail) in [
+        (
+            "POST",
+            "/solve/".to_owned(),
+            format!("no route for POST `/solve/`. Did you mean /solve? {LISTED}"),
+        ),
+        (
+            "GET",
+            "/problems/default//".to_owned(),
+            format!(
+                "no route for GET `/problems/default//`. Did you mean /problems/default? {LISTED}"
+            ),
+        ),
+        (
+            "GET",
+            "/Healthz".to_owned(),
+            format!("no route for GET `/Healthz`. Did you mean /healthz? {LISTED}"),
+        ),
+        (
+            "GET",
+            "/nope".to_owned(),
+            format!("no route for GET `/nope`. {LISTED}"),
+        ),
+        (
+            "GET",
+            "/docs/nope.js".to_owned(),
+            format!("no route for GET `/docs/nope.js`. {LISTED}"),
+        ),
+        (
+            "GET",
+            long.clone(),
+            format!("no route for GET `{}...`. {LISTED}", &long[..100]),
+        ),
+    ] {
+        let res = client
+            .request(method.parse().unwrap(), s.url(&path))
+            .send()
+            .await
+            .unwrap();
+        let p = problem_of(res, StatusCode::NOT_FOUND).await;
+        assert_eq!(p["detail"], detail, "{method} {path}");
+    }
+    let p = problem_of(s.get("/solve").await, StatusCode::METHOD_NOT_ALLOWED).await;
+    assert_eq!(
+        p["detail"],
+        format!("`/solve` does not take GET (the Allow header lists what it takes). {LISTED}")
+    );
+}
+
 /// Wrong shapes do not hide the other errors: one 422 lists them all, and
 /// the rest is checked against the server's own limits.
 #[tokio::test]

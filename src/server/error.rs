@@ -57,8 +57,9 @@ pub enum ApiError {
     MalformedJson(String),
     /// The body is JSON but not a valid problem (422).
     Validation(Invalid),
-    /// `Content-Type` is missing or not JSON (415).
-    UnsupportedMediaType,
+    /// `Content-Type` is missing, not JSON or not UTF-8, or the body is
+    /// compressed (415); the detail says which, and what was received.
+    UnsupportedMediaType(String),
     /// The body exceeds the configured limit (413).
     PayloadTooLarge(usize),
     /// The body did not arrive within the read timeout, in s (408).
@@ -72,10 +73,12 @@ pub enum ApiError {
     ShuttingDown,
     /// A bug: a solver panic or a lost worker (500).
     Internal,
-    /// No such route (404).
-    NotFound,
-    /// Wrong method for the route (405).
-    MethodNotAllowed,
+    /// No such route (404): the detail echoes the request's method and
+    /// path, and suggests the route a near miss meant.
+    NotFound(String),
+    /// Wrong method for the route (405): the detail echoes the request's
+    /// method and path.
+    MethodNotAllowed(String),
 }
 
 impl ApiError {
@@ -87,7 +90,7 @@ impl ApiError {
                 "validation",
                 "Invalid problem",
             ),
-            Self::UnsupportedMediaType => (
+            Self::UnsupportedMediaType(_) => (
                 StatusCode::UNSUPPORTED_MEDIA_TYPE,
                 "unsupported-media-type",
                 "Unsupported media type",
@@ -122,8 +125,8 @@ impl ApiError {
                 "internal",
                 "Internal error",
             ),
-            Self::NotFound => (StatusCode::NOT_FOUND, "not-found", "Not found"),
-            Self::MethodNotAllowed => (
+            Self::NotFound(_) => (StatusCode::NOT_FOUND, "not-found", "Not found"),
+            Self::MethodNotAllowed(_) => (
                 StatusCode::METHOD_NOT_ALLOWED,
                 "method-not-allowed",
                 "Method not allowed",
@@ -136,15 +139,15 @@ impl ApiError {
         match self {
             Self::MalformedJson(_) => "malformed_json",
             Self::Validation(_) => "invalid",
-            Self::UnsupportedMediaType => "unsupported_media_type",
+            Self::UnsupportedMediaType(_) => "unsupported_media_type",
             Self::PayloadTooLarge(_) => "too_large",
             Self::RequestTimeout(_) => "body_timeout",
             Self::UnreadableBody(_) => "unreadable_body",
             Self::Overloaded { .. } => "queue_full",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
-            Self::NotFound => "not_found",
-            Self::MethodNotAllowed => "method_not_allowed",
+            Self::NotFound(_) => "not_found",
+            Self::MethodNotAllowed(_) => "method_not_allowed",
         }
     }
 
@@ -183,12 +186,7 @@ impl ApiError {
                 }
                 (detail, invalid.errors.clone(), None)
             }
-            Self::UnsupportedMediaType => (
-                "send the problem as uncompressed UTF-8 JSON with `Content-Type: application/json`"
-                    .into(),
-                vec![],
-                None,
-            ),
+            Self::UnsupportedMediaType(detail) => (detail.clone(), vec![], None),
             Self::PayloadTooLarge(limit) => (
                 format!("the body exceeds the limit of {limit} bytes"),
                 vec![],
@@ -218,12 +216,9 @@ impl ApiError {
                 vec![],
                 None,
             ),
-            Self::NotFound => ("no such route; see /docs".into(), vec![], None),
-            Self::MethodNotAllowed => (
-                "this route does not accept that method; see /docs".into(),
-                vec![],
-                None,
-            ),
+            Self::NotFound(detail) | Self::MethodNotAllowed(detail) => {
+                (detail.clone(), vec![], None)
+            }
         };
         let unlisted_errors = match self {
             Self::Validation(invalid) if invalid.unlisted > 0 => Some(invalid.unlisted as u64),

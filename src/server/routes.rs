@@ -209,7 +209,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                         .validator_url("none"),
                 ),
             )
-            .layer(axum::middleware::map_response(docs_fixes)),
+            .layer(axum::middleware::from_fn(docs_fixes)),
         )
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
@@ -279,12 +279,8 @@ impl FromRequest<Arc<AppState>> for ProblemJson {
 
 async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec, ApiError> {
     let headers = req.headers();
-    let encoded = headers
-        .get(header::CONTENT_ENCODING)
-        .is_some_and(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"));
-    if encoded || !is_json(headers) {
-        return Err(ApiError::UnsupportedMediaType);
-    }
+    unsupported_media_type(headers)
+        .map_or(Ok(()), |detail| Err(ApiError::UnsupportedMediaType(detail)))?;
     let limit = state.config.max_body_bytes;
     // A declared length over the limit is refused before reading a byte (and
     // before hyper answers `Expect: 100-continue`).
@@ -318,33 +314,94 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     }
 }
 
-fn is_json(headers: &HeaderMap) -> bool {
-    let Some(ct) = headers
-        .get(header::CONTENT_TYPE)
-        .and_then(|v| v.to_str().ok())
-    else {
-        return false;
+/// Why the body cannot be read as a problem, going by its headers (the
+/// detail of a 415), or `None` if it can: uncompressed JSON in UTF-8.
+/// Each cause is told apart and what was received is echoed, since the
+/// fix differs: `curl -d` without `-H` sends a form's media type, a
+/// client library may add a charset or compress the body.
+fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
+    if let Some(coding) = headers
+        .get(header::CONTENT_ENCODING)
+        .filter(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"))
+    {
+        return Some(format!(
+            "the body is compressed (Content-Encoding: {}); send it uncompressed, \
+             as this service reads no compressed requests",
+            shown(coding.as_bytes())
+        ));
+    }
+    const SEND: &str = "send the problem as UTF-8 JSON with `Content-Type: application/json`";
+    let Some(value) = headers.get(header::CONTENT_TYPE) else {
+        return Some(format!("the request has no Content-Type; {SEND}"));
+    };
+    let Ok(ct) = value.to_str() else {
+        return Some(format!(
+            "the Content-Type {} is not plain ASCII text; {SEND}",
+            shown(value.as_bytes())
+        ));
     };
     let mut parts = split_params(ct);
     let essence = parts.next().unwrap_or("").trim().to_ascii_lowercase();
-    // The body is read as UTF-8, JSON's only encoding (RFC 8259 §8.1): a
-    // charset that says otherwise would be misread, so it is refused.
-    let utf8 = parts.all(|param| match param.split_once('=') {
-        // `utf8` is a common label of UTF-8 too (WHATWG Encoding), and
-        // ASCII is a subset of it.
-        Some((name, value)) if name.trim().eq_ignore_ascii_case("charset") => {
-            let charset = value.trim().trim_matches('"');
-            ["utf-8", "utf8", "us-ascii"]
-                .iter()
-                .any(|c| charset.eq_ignore_ascii_case(c))
-        }
-        _ => true,
-    });
     // `application/*+json` too (RFC 6839 structured syntax suffix), as
     // axum's `Json` takes it.
     let json = essence == "application/json"
         || (essence.starts_with("application/") && essence.ends_with("+json"));
-    json && utf8
+    if essence == "application/x-www-form-urlencoded" {
+        return Some(format!(
+            "the Content-Type is {}, a form, which is what `curl -d` sends unless \
+             told otherwise: add -H 'content-type: application/json'",
+            shown(ct.as_bytes())
+        ));
+    }
+    if !json {
+        return Some(format!(
+            "the Content-Type is {}, which is not JSON (application/json or \
+             application/*+json); {SEND}",
+            shown(ct.as_bytes())
+        ));
+    }
+    // The body is read as UTF-8, JSON's only encoding (RFC 8259 §8.1): a
+    // charset that says otherwise would be misread, so it is refused.
+    let other_charset = parts.find_map(|param| match param.split_once('=') {
+        Some((name, value)) if name.trim().eq_ignore_ascii_case("charset") => {
+            let charset = value.trim().trim_matches('"');
+            // `utf8` is a common label of UTF-8 too (WHATWG Encoding), and
+            // ASCII is a subset of it.
+            let utf8 = ["utf-8", "utf8", "us-ascii"]
+                .iter()
+                .any(|c| charset.eq_ignore_ascii_case(c));
+            (!utf8).then_some(charset)
+        }
+        _ => None,
+    });
+    other_charset.map(|charset| {
+        format!(
+            "the Content-Type names the charset {}, but the body is read as UTF-8 \
+             JSON (its only encoding): send UTF-8, with charset=utf-8 or no charset",
+            shown(charset.as_bytes())
+        )
+    })
+}
+
+/// Longest piece of a request (a header, a path) echoed in a problem's
+/// `detail`, in characters.
+const MAX_ECHOED_CHARS: usize = 100;
+
+/// A header value or path as echoed in a `detail`, in backquotes: at most
+/// [`MAX_ECHOED_CHARS`] characters of it (a header may be 400 KiB long), a
+/// byte that is not UTF-8 as U+FFFD and a control character as `?`, so
+/// the line stays one readable line. JSON escaping is serde_json's.
+fn shown(bytes: &[u8]) -> String {
+    let text = String::from_utf8_lossy(bytes);
+    let mut out: String = text
+        .chars()
+        .take(MAX_ECHOED_CHARS)
+        .map(|c| if c.is_control() { '?' } else { c })
+        .collect();
+    if text.chars().nth(MAX_ECHOED_CHARS).is_some() {
+        out.push_str("...");
+    }
+    format!("`{out}`")
 }
 
 /// Splits a media type at the `;` that are outside quoted strings (RFC 9110
@@ -731,22 +788,60 @@ async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
         .into_response()
 }
 
-async fn not_found() -> ApiError {
-    ApiError::NotFound
+/// Where a 404 or 405 sends its reader: in words, since under a proxy's
+/// path prefix an absolute link such as `/docs` leads out of the service.
+const ROUTES_ARE_LISTED: &str = "The routes are listed in openapi.json and on the docs/ \
+                                 page, both at the service's root.";
+
+/// The routes of the API, for the 404's suggestion: the OpenAPI
+/// document's paths, so the list cannot drift from the router.
+static ROUTES: std::sync::LazyLock<Vec<String>> =
+    std::sync::LazyLock::new(|| openapi().paths.paths.keys().cloned().collect());
+
+/// 404 for `method` and `path`: what was asked for, and the route it
+/// probably meant when it differs only by trailing slashes or case
+/// (`/solve/`, `/Solve`). Behind a proxy that adds a path prefix the
+/// service sees the path without it, so the suggestion is a path from the
+/// service's root, and the pointer to the documentation says so in words
+/// rather than as a link that would leave the prefix.
+fn not_found_error(method: &axum::http::Method, path: &str) -> ApiError {
+    let trimmed = path.trim_end_matches('/');
+    let meant = ROUTES
+        .iter()
+        .find(|r| r.as_str() == trimmed || r.trim_end_matches('/') == trimmed)
+        .or_else(|| {
+            ROUTES
+                .iter()
+                .find(|r| r.trim_end_matches('/').eq_ignore_ascii_case(trimmed))
+        })
+        .filter(|r| r.as_str() != path);
+    let mut detail = format!("no route for {method} {}.", shown(path.as_bytes()));
+    if let Some(route) = meant {
+        detail.push_str(&format!(" Did you mean {route}?"));
+    }
+    detail.push(' ');
+    detail.push_str(ROUTES_ARE_LISTED);
+    ApiError::NotFound(detail)
+}
+
+async fn not_found(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
+    not_found_error(&method, uri.path())
 }
 
 /// Three fixes to Swagger UI's routes. Its `/docs/{*rest}` route answers an
 /// unknown file with an empty 404 of its own, before the router's fallback
-/// can; make it ours. Its `/docs` redirect says `Location: /docs/`,
+/// can; make it ours (with the request's method and path, as the
+/// fallback's). Its `/docs` redirect says `Location: /docs/`,
 /// which behind a proxy that adds a path prefix leads out of it
 /// (`/ilqr/docs` → `/docs/`); `docs/` is the same place relative to
 /// `/docs`, and stays under any prefix. And its page's title is "Swagger
 /// UI", which says nothing in a row of browser tabs.
-async fn docs_fixes(res: Response) -> Response {
+async fn docs_fixes(req: Request, next: axum::middleware::Next) -> Response {
+    let (method, path) = (req.method().clone(), req.uri().path().to_owned());
+    let mut res = next.run(req).await;
     if res.status() == StatusCode::NOT_FOUND {
-        return ApiError::NotFound.into_response();
+        return not_found_error(&method, &path).into_response();
     }
-    let mut res = res;
     if res.status().is_redirection()
         && res.headers().get(header::LOCATION) == Some(&HeaderValue::from_static("/docs/"))
     {
@@ -780,6 +875,10 @@ async fn docs_fixes(res: Response) -> Response {
     res
 }
 
-async fn method_not_allowed() -> ApiError {
-    ApiError::MethodNotAllowed
+async fn method_not_allowed(method: axum::http::Method, uri: axum::http::Uri) -> ApiError {
+    ApiError::MethodNotAllowed(format!(
+        "{} does not take {method} (the Allow header lists what it takes). \
+         {ROUTES_ARE_LISTED}",
+        shown(uri.path().as_bytes())
+    ))
 }
