@@ -629,6 +629,126 @@ fn text_logs_to_a_pipe_have_no_colour_escapes() {
     assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
 }
 
+/// One request over a fresh connection, read to its end.
+fn exchange(addr: &str, request: &str) -> String {
+    use std::io::{Read, Write};
+    let mut conn = std::net::TcpStream::connect(addr).unwrap();
+    conn.write_all(request.as_bytes()).unwrap();
+    let mut answer = String::new();
+    conn.read_to_string(&mut answer).unwrap();
+    answer
+}
+
+/// The log line of a 4xx says why, with the problem's type, title and
+/// detail (it said only `status=422 latency_ms=...`), under the request's
+/// id, in both formats; the detail is cut to 300 characters, and the body
+/// is not logged.
+#[test]
+fn a_client_error_is_logged_with_its_reason() {
+    use std::io::Read;
+    for format in ["text", "json"] {
+        let (mut server, bind) = serve_on_free_port(|cmd, bind| {
+            cmd.args(["--bind", bind, "--workers", "1", "--log-format", format])
+                .env("RUST_LOG", "info")
+                .stdout(std::process::Stdio::piped())
+                .stderr(std::process::Stdio::null());
+        });
+        let body = r#"{"dt": -1, "note": "secret-body-text"}"#;
+        let answer = exchange(
+            &bind,
+            &format!(
+                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                 x-request-id: req-422\r\nConnection: close\r\nContent-Length: {}\r\n\r\n{body}",
+                body.len()
+            ),
+        );
+        assert!(answer.starts_with("HTTP/1.1 422"), "{answer}");
+        let answer = exchange(
+            &bind,
+            "GET /solve/ HTTP/1.1\r\nHost: x\r\nx-request-id: req-404\r\n\
+             Connection: close\r\n\r\n",
+        );
+        assert!(answer.starts_with("HTTP/1.1 404"), "{answer}");
+        // A detail that quotes 1000 characters (elided to about 400).
+        let body = format!(r#"{{"dt": "{}"}}"#, "y".repeat(1000));
+        let answer = exchange(
+            &bind,
+            &format!(
+                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                 x-request-id: req-long\r\nConnection: close\r\nContent-Length: {}\r\n\r\n{body}",
+                body.len()
+            ),
+        );
+        assert!(answer.starts_with("HTTP/1.1 422"), "{answer}");
+        let _ = server.0.kill();
+        let _ = server.0.wait();
+        let mut logs = String::new();
+        server
+            .0
+            .stdout
+            .take()
+            .unwrap()
+            .read_to_string(&mut logs)
+            .unwrap();
+        let line = |id: &str| {
+            logs.lines()
+                .find(|l| l.contains(id) && l.contains("response"))
+                .unwrap_or_else(|| panic!("{format}: no response line for {id} in {logs}"))
+                .to_owned()
+        };
+        let invalid = line("req-422");
+        assert!(!invalid.contains("secret-body-text"), "{invalid}");
+        let not_found = line("req-404");
+        let long = line("req-long");
+        if format == "json" {
+            let invalid: serde_json::Value = serde_json::from_str(&invalid).unwrap();
+            assert_eq!(invalid["level"], "INFO");
+            assert_eq!(invalid["status"], 422);
+            assert_eq!(invalid["problem_type"], "urn:ilqr-service:validation");
+            assert_eq!(invalid["title"], "Invalid problem");
+            assert_eq!(invalid["detail"], "2 invalid fields; see `errors`");
+            let not_found: serde_json::Value = serde_json::from_str(&not_found).unwrap();
+            assert_eq!(not_found["problem_type"], "urn:ilqr-service:not-found");
+            assert_eq!(not_found["title"], "Not found");
+            let detail = not_found["detail"].as_str().unwrap();
+            assert!(
+                detail.starts_with("no route for GET `/solve/`. Did you mean /solve?"),
+                "{detail}"
+            );
+            let long: serde_json::Value = serde_json::from_str(&long).unwrap();
+            let detail = long["detail"].as_str().unwrap();
+            assert_eq!(detail.chars().count(), 303, "{detail}");
+            assert!(detail.starts_with("/dt: invalid type: string"), "{detail}");
+            assert!(detail.ends_with("..."), "{detail}");
+        } else {
+            for says in [
+                " INFO ",
+                "status=422",
+                "problem_type=\"urn:ilqr-service:validation\"",
+                "title=\"Invalid problem\"",
+                "detail=\"2 invalid fields; see `errors`\"",
+            ] {
+                assert!(invalid.contains(says), "{says}: {invalid}");
+            }
+            assert!(
+                not_found.contains(
+                    "problem_type=\"urn:ilqr-service:not-found\" title=\"Not found\" \
+                     detail=\"no route for GET `/solve/`. Did you mean /solve?"
+                ),
+                "{not_found}"
+            );
+            // Quoted, with the quotes around the string it quotes escaped.
+            let detail = &long[long.find("detail=").unwrap() + "detail=".len()..];
+            assert!(
+                detail.starts_with(r#""/dt: invalid type: string \"yyy"#),
+                "{detail}"
+            );
+            assert!(detail.ends_with(r#"yyy...""#), "{detail}");
+            assert!(detail.len() < 320, "{detail}");
+        }
+    }
+}
+
 /// SIGTERM starts a drain that waits for the solves in flight; a second
 /// SIGTERM during it ends the process at once with exit status 143 (the
 /// way out of a long drain at a terminal).

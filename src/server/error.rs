@@ -249,6 +249,26 @@ fn label(pointer: &str) -> &str {
     }
 }
 
+/// Longest `detail` the access log keeps, in characters: a validation
+/// detail can quote a few hundred characters of a key, and a log line is
+/// read in a terminal or paid for by the byte.
+const MAX_LOGGED_DETAIL_CHARS: usize = 300;
+
+/// What the access log says of an error answer, carried to it in the
+/// response's extensions (never sent): without it the line for a 4xx said
+/// only `status=422`, and the reason was in the body, which is not logged.
+#[derive(Debug, Clone)]
+pub(crate) struct LoggedProblem {
+    /// The problem's `type`.
+    pub kind: String,
+    /// The problem's `title`.
+    pub title: &'static str,
+    /// The problem's `detail`, cut to [`MAX_LOGGED_DETAIL_CHARS`]. It says
+    /// what was wrong and may quote a short value; the body itself is never
+    /// logged.
+    pub detail: String,
+}
+
 impl IntoResponse for ApiError {
     fn into_response(self) -> Response {
         let problem = self.problem();
@@ -259,6 +279,19 @@ impl IntoResponse for ApiError {
         if let Some(secs) = problem.retry_after {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
+        let mut detail: String = problem
+            .detail
+            .chars()
+            .take(MAX_LOGGED_DETAIL_CHARS)
+            .collect();
+        if detail.len() < problem.detail.len() {
+            detail.push_str("...");
+        }
+        res.extensions_mut().insert(LoggedProblem {
+            kind: problem.kind,
+            title: self.parts().2,
+            detail,
+        });
         res
     }
 }

@@ -19,7 +19,7 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use utoipa_swagger_ui::SwaggerUi;
 
-use super::error::{ApiError, Problem};
+use super::error::{ApiError, LoggedProblem, Problem};
 use super::pool::Ticket;
 use super::{AppState, metrics};
 use crate::problem::{ParseError, ProblemSpec, parse};
@@ -258,7 +258,20 @@ impl<B> OnResponse<B> for AccessLog {
         let status = res.status().as_u16();
         let latency_ms = crate::solve::millis(latency);
         if res.status().is_client_error() {
-            tracing::info!(status, latency_ms, "response");
+            // The reason, which a 4xx's body gives the client, for whoever
+            // reads the log; every ApiError carries it.
+            match res.extensions().get::<LoggedProblem>() {
+                Some(p) => tracing::info!(
+                    status,
+                    latency_ms,
+                    problem_type = p.kind.as_str(),
+                    title = p.title,
+                    // A string, so the text format quotes it (it has spaces).
+                    detail = p.detail.as_str(),
+                    "response"
+                ),
+                None => tracing::info!(status, latency_ms, "response"),
+            }
         } else {
             tracing::debug!(status, latency_ms, "response");
         }
