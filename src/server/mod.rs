@@ -12,7 +12,8 @@
 //! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
 //!   polls with the budget. A guard owned by the request handler sets it when
 //!   the handler is dropped, which is what hyper does when the client
-//!   disconnects. Shutdown sets every registered flag after the grace period.
+//!   disconnects (or half-closes its socket: see the comment in [`run`]).
+//!   Shutdown sets every registered flag after the grace period.
 //! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers
 //!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
 //!   cancelled (they answer 200 with status `cancelled`), then the server
@@ -510,6 +511,16 @@ pub async fn run(
                 let service = TowerToHyperService::new(service.clone());
                 let mut stop = stop_rx.clone();
                 connections.spawn(async move {
+                    // `half_close` stays off (hyper's default): the end of
+                    // a client's input (TCP FIN) is read as the client
+                    // leaving, which drops the handler and so withdraws or
+                    // cancels its solve (nginx logs this case as 499). TCP
+                    // cannot tell a half-close (`shutdown(SHUT_WR)`, `nc
+                    // -N`, Go's CloseWrite) from a full close, and
+                    // cancelling abandoned solves is a requirement, so a
+                    // client that half-closes may get no answer, on GET
+                    // routes too; HTTP clients do not half-close (README,
+                    // "Connections and cancellation on disconnect").
                     let conn = Builder::new()
                         .timer(TokioTimer::new())
                         .header_read_timeout(read_timeout)
