@@ -680,6 +680,14 @@ fn a_client_error_is_logged_with_its_reason() {
             ),
         );
         assert!(answer.starts_with("HTTP/1.1 422"), "{answer}");
+        // A path of thousands of characters: every line of the request's
+        // span repeats the URI, cut to 200.
+        let path = "p".repeat(5000);
+        let answer = exchange(
+            &bind,
+            &format!("GET /{path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"),
+        );
+        assert!(answer.starts_with("HTTP/1.1 404"), "{answer}");
         let _ = server.0.kill();
         let _ = server.0.wait();
         let mut logs = String::new();
@@ -698,6 +706,9 @@ fn a_client_error_is_logged_with_its_reason() {
         };
         let invalid = line("req-422");
         assert!(!invalid.contains("secret-body-text"), "{invalid}");
+        let huge = line(&"p".repeat(199));
+        assert!(!huge.contains(&"p".repeat(200)), "{format}: {huge}");
+        assert!(huge.len() < 2000, "{format}: {} bytes", huge.len());
         let not_found = line("req-404");
         let long = line("req-long");
         if format == "json" {

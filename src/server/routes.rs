@@ -230,13 +230,21 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                     // failure of this process: warn, don't error.
                     .on_failure(DefaultOnFailure::new().level(tracing::Level::WARN))
                     .make_span_with(|req: &Request| {
-                    let id = req
-                        .headers()
-                        .get("x-request-id")
-                        .and_then(|v| v.to_str().ok())
-                        .unwrap_or("-");
-                    tracing::info_span!("request", request_id = %id, method = %req.method(), uri = %req.uri())
-                }),
+                        let id = req
+                            .headers()
+                            .get("x-request-id")
+                            .and_then(|v| v.to_str().ok())
+                            .unwrap_or("-");
+                        // The URI may be as long as the head limit (400 KiB),
+                        // and every line of the request's span repeats it. (A
+                        // long request id was replaced already.)
+                        tracing::info_span!(
+                            "request",
+                            request_id = %id,
+                            method = %req.method(),
+                            uri = %clipped(&req.uri().to_string()),
+                        )
+                    }),
             )
             .layer(PropagateRequestIdLayer::x_request_id())
             .map_request(move |req| canonical_accept_encoding(req, gzip_level))
@@ -244,7 +252,9 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
             // `/solve` answers are gzipped on the solver pool, see
             // [`encode`], and this layer leaves encoded bodies alone.
             .layer(CompressionLayer::new().quality(CompressionLevel::Precise(gzip_level as i32)))
-            .layer(CatchPanicLayer::custom(|_| ApiError::Internal.into_response())),
+            .layer(CatchPanicLayer::custom(|_| {
+                ApiError::Internal.into_response()
+            })),
     )
 }
 
@@ -399,6 +409,17 @@ fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
 /// Longest piece of a request (a header, a path) echoed in a problem's
 /// `detail`, in characters.
 const MAX_ECHOED_CHARS: usize = 100;
+
+/// Longest URI a log line carries, in characters.
+const MAX_LOGGED_CHARS: usize = 200;
+
+/// `text` cut to [`MAX_LOGGED_CHARS`] characters, marked with `...` when cut.
+fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
+    match text.char_indices().nth(MAX_LOGGED_CHARS) {
+        Some((end, _)) => format!("{}...", &text[..end]).into(),
+        None => text.into(),
+    }
+}
 
 /// A header value or path as echoed in a `detail`, in backquotes: at most
 /// [`MAX_ECHOED_CHARS`] characters of it (a header may be 400 KiB long), a
