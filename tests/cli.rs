@@ -607,7 +607,6 @@ fn a_config_built_in_code_is_checked_too() {
 /// file, a pipe, `docker logs`): they used to, on every line.
 #[test]
 fn text_logs_to_a_pipe_have_no_colour_escapes() {
-    use std::io::Read;
     let (mut server, _) = serve_on_free_port(|cmd, bind| {
         cmd.args(["serve", "--bind", bind, "--workers", "1"])
             .env_remove("ILQR_LOG_FORMAT")
@@ -615,18 +614,25 @@ fn text_logs_to_a_pipe_have_no_colour_escapes() {
             .stdout(std::process::Stdio::piped())
             .stderr(std::process::Stdio::null());
     });
+    let logs = stop_and_read_stdout(&mut server);
+    assert!(logs.contains("INFO"), "no log lines: {logs:?}");
+    assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
+}
+
+/// Stop a server started with piped stdout; what it wrote there.
+fn stop_and_read_stdout(server: &mut Child) -> String {
+    use std::io::Read;
     let _ = server.0.kill();
     let _ = server.0.wait();
-    let mut logs = String::new();
+    let mut out = String::new();
     server
         .0
         .stdout
         .take()
-        .unwrap()
-        .read_to_string(&mut logs)
-        .unwrap();
-    assert!(logs.contains("INFO"), "no log lines: {logs:?}");
-    assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
+        .expect("stdout was piped")
+        .read_to_string(&mut out)
+        .expect("stdout is UTF-8");
+    out
 }
 
 /// One request over a fresh connection, read to its end.
@@ -645,7 +651,6 @@ fn exchange(addr: &str, request: &str) -> String {
 /// is not logged.
 #[test]
 fn a_client_error_is_logged_with_its_reason() {
-    use std::io::Read;
     for format in ["text", "json"] {
         let (mut server, bind) = serve_on_free_port(|cmd, bind| {
             cmd.args(["--bind", bind, "--workers", "1", "--log-format", format])
@@ -688,16 +693,7 @@ fn a_client_error_is_logged_with_its_reason() {
             &format!("GET /{path} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n"),
         );
         assert!(answer.starts_with("HTTP/1.1 404"), "{answer}");
-        let _ = server.0.kill();
-        let _ = server.0.wait();
-        let mut logs = String::new();
-        server
-            .0
-            .stdout
-            .take()
-            .unwrap()
-            .read_to_string(&mut logs)
-            .unwrap();
+        let logs = stop_and_read_stdout(&mut server);
         let line = |id: &str| {
             logs.lines()
                 .find(|l| l.contains(id) && l.contains("response"))
