@@ -628,7 +628,7 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
         s += &format!(
             "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20); {}\n",
             if r.convex_model_at_end == Some(true) {
-                "the result rests on the convex model"
+                "the gains come from the convex model"
             } else {
                 "the exact Hessian took over again"
             }

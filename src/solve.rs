@@ -26,10 +26,11 @@ use crate::schema;
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
-    /// A full step gained less than `solver.tolerance` relative to the
-    /// cost, and the model about the result predicts that another would
-    /// gain no more; or the cost is 0, its lower bound (a global optimum:
-    /// every weight is zero, say).
+    /// The model about the result (the cost's exact Hessian) predicts that
+    /// a full step would gain less than `solver.tolerance` relative to the
+    /// cost, after a full step gained less than that too or with no
+    /// regularisation needed; or the cost is 0, its lower bound (a global
+    /// optimum: every weight is zero, say).
     Converged,
     /// `solver.max_iterations` ran out first.
     MaxIterations,
@@ -38,7 +39,9 @@ pub enum SolveStatus {
     /// The solve was cancelled (client gone, or service shutting down).
     Cancelled,
     /// Regularisation passed its maximum: no step could reduce the cost,
-    /// with the exact Hessian nor with the convex model tried after it.
+    /// with the exact Hessian nor (with obstacles) with the convex model
+    /// tried after it; or the exact Hessian could not move from a point
+    /// where the convex model stopped (see `convex_model_at_end`).
     NoProgress,
 }
 
@@ -96,9 +99,9 @@ pub struct SolveResult {
     /// false, and when no backward pass completed, so that there is no
     /// policy to give: a solve that ended (`time_limit` or `cancelled`, 0
     /// iterations) before its first backward pass completed, or one whose
-    /// first pass failed at every regularisation, with the exact and then
-    /// the convex model (`no_progress`, 0 iterations; only where the
-    /// derivatives overflow, at extreme parameters).
+    /// first pass failed at every regularisation, with the exact and (with
+    /// obstacles) the convex model (`no_progress`, 0 iterations; only where
+    /// the derivatives overflow, at extreme parameters).
     // Left out when None, never `null`: the schema must not offer null.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
@@ -122,10 +125,10 @@ pub struct SolveResult {
     #[schema(nullable = false, minimum = 0)]
     pub convexified_after_iteration: Option<usize>,
     /// Present with `convexified_after_iteration`. True: the gains come from
-    /// the convex model (the solve ended on it, or the exact Hessian could
-    /// complete no backward pass about its minimum), and a `converged` is a
-    /// stationary point whose second-order condition was not checked.
-    /// False: the exact Hessian took over again and gave the gains.
+    /// the convex model (the solve stopped on it, or the exact Hessian could
+    /// complete no backward pass about its minimum); never with `converged`,
+    /// which the exact Hessian confirms. False: the exact Hessian took over
+    /// again and gave the gains.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
     pub convex_model_at_end: Option<bool>,

@@ -81,7 +81,9 @@ pub trait Cost<const NX: usize, const NU: usize>: Send + Sync {
     /// falls back to it when the exact Hessian leaves `Q_uu` indefinite at
     /// every regularisation up to `Options::mu_max` (see
     /// `Options::convex_fallback`). The default is the exact expansion,
-    /// right for a cost that is convex already.
+    /// right for a cost that is convex already. A cost that overrides it
+    /// must override [`Cost::has_convex_approximation`] too, or the solver
+    /// skips the fallback.
     fn stage_expand_convex(
         &self,
         k: usize,
@@ -117,7 +119,9 @@ pub trait StageCost<const NX: usize, const NU: usize>: Send + Sync {
     );
     /// Add the term's gradient and a positive semi-definite approximation
     /// of its Hessian into `e` (see [`Cost::stage_expand_convex`]). The
-    /// default adds the exact Hessian: a convex term overrides nothing.
+    /// default adds the exact Hessian: a convex term overrides nothing. A
+    /// term that overrides it must override
+    /// [`StageCost::has_convex_approximation`] too.
     fn expand_convex(
         &self,
         k: usize,

@@ -111,9 +111,10 @@ pub struct Options {
     pub mu_init: f64,
     /// Smallest non-zero μ; below it μ snaps to 0.
     pub mu_min: f64,
-    /// Largest μ; needing more switches to the cost's convex expansion
-    /// ([`Options::convex_fallback`]), or, when that is off or in use
-    /// already, ends the solve with [`Status::NoProgress`].
+    /// Largest μ; needing more switches the exact Hessian to the cost's
+    /// convex expansion ([`Options::convex_fallback`]), or, where that is
+    /// off, has nothing to drop or is stuck too, ends the solve with
+    /// [`Status::NoProgress`].
     ///
     /// The default, 1e20, is far above iLQG.m's 1e10 because `Q_uu` here is
     /// not normalised: the obstacle term's negative curvature (up to `q/ρ`
@@ -161,7 +162,7 @@ pub struct Options {
     /// Hessian takes over again to check that point: its larger curvature
     /// can under-predict what a step gains (the seed at `dt = 10` with a
     /// 1e12 obstacle stopped 1.9e-6 above IPOPT's optimum). If the exact
-    /// Hessian cannot move from there at any μ, the convex minimum stands
+    /// Hessian cannot move from there at any μ, the solve ends `NoProgress`
     /// (with the convex expansion's gains where no exact pass completed:
     /// [`Summary::gains_convex`]); if it moves and then gets stuck in turn,
     /// the convex expansion takes over again. Only a solve that would have
@@ -204,9 +205,11 @@ impl Default for Options {
 /// best trajectory found so far.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash)]
 pub enum Status {
-    /// The relative cost change fell below the tolerance and the model
-    /// predicts no more (see [`Options::tolerance`]), or the cost reached
-    /// [`Options::cost_lower_bound`].
+    /// The exact Hessian's model predicts no full step would gain
+    /// `tolerance·|J|`, after a full step gained less than that or without
+    /// regularisation (see [`Options::tolerance`]), or the cost reached
+    /// [`Options::cost_lower_bound`]. A minimum the convex expansion finds
+    /// is checked with the exact Hessian first ([`Options::convex_fallback`]).
     Converged,
     /// `max_iterations` were spent first.
     MaxIterations,
@@ -215,10 +218,12 @@ pub enum Status {
     /// The cancellation flag was set.
     Cancelled,
     /// Regularisation passed `mu_max`: neither the backward pass nor the line
-    /// search could make progress, with the exact Hessian nor (unless
-    /// `convex_fallback` is off) with the convex expansion after it. Also
-    /// where the convex expansion found a stationary point at once, which
-    /// its model cannot tell from a maximum.
+    /// search could make progress, with the exact Hessian nor (where
+    /// `convex_fallback` is on and the cost has obstacles) with the convex
+    /// expansion after it. Also where the convex expansion found a
+    /// stationary point at once, which its model cannot tell from a
+    /// maximum, or one the exact Hessian could not move from (a saddle's
+    /// signature, or a model step no line search accepts).
     NoProgress,
 }
 
@@ -291,10 +296,10 @@ pub struct Summary {
     pub convexified_after: Option<usize>,
     /// Whether the gains come from the convex expansion: the solve ended on
     /// it, or went back to the exact Hessian to check its minimum and found
-    /// no pass to complete there. A `Converged` with gains from the convex
-    /// expansion is a stationary point whose second-order condition was
-    /// not checked. False when the exact Hessian gave the gains, and
-    /// whenever [`Summary::convexified_after`] is `None`.
+    /// no pass to complete there. Never with `Converged`, which the exact
+    /// Hessian confirms (a cost at its lower bound aside). False when the
+    /// exact Hessian gave the gains, and whenever
+    /// [`Summary::convexified_after`] is `None`.
     pub gains_convex: bool,
 }
 
@@ -756,6 +761,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 gains_current = false;
                 decrease(&mut mu, &mut delta, options);
             } else {
+                // The model about the last step's iterate predicted more
+                // than it found: its small gain no longer counts, or the
+                // rising μ would shrink the model's prediction until it
+                // agreed.
+                converged = false;
                 increase(&mut mu, &mut delta, options);
             }
             row.elapsed = start.elapsed();
@@ -1139,22 +1149,25 @@ enum Model {
 /// * from the exact model checking a convex minimum, after it moved (it
 ///   found the minimum false and then got stuck in turn).
 ///
-/// `Err` ends the solve: converged where the check could not move from
-/// the convex minimum at any μ (the exact model sees no descent there
-/// either), no progress otherwise (the convex expansion is stuck too, the
-/// fallback is off, or the cost has nothing to convexify).
+/// `Err(NoProgress)` ends the solve otherwise:
+///
+/// * the check could not move from the convex minimum at any μ. That is
+///   no confirmation: `Q_uu` indefinite up to μ = 1e20 at a point of zero
+///   gradient is a saddle's signature, and IPOPT lowered such a point 16×
+///   (1 mg quadrotor, 10 s steps). Nor is a model step that no line search
+///   accepts;
+/// * the convex expansion is stuck too, the fallback is off, or the cost
+///   has nothing to convexify.
 fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
     problem: &Problem<D, C, NX>,
     options: &Options,
     model: &mut Model,
     moved: bool,
 ) -> Result<(), Status> {
-    if *model == Model::Checking && !moved {
-        return Err(Status::Converged);
-    }
     // A cost with nothing to convexify would only repeat what just failed
     // (and report a fallback that changed nothing).
     if *model == Model::Convex
+        || (*model == Model::Checking && !moved)
         || !options.convex_fallback
         || !problem.cost.has_convex_approximation()
     {

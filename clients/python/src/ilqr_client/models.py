@@ -545,10 +545,10 @@ class SolveResult:
             Where the convex model converges, the solve checks that point
             with the exact Hessian again (see ``convex_model_at_end``).
         convex_model_at_end: ``None`` without a fallback. ``True`` when the
-            result rests on the convex model (the gains come from it, and a
-            ``converged`` is a stationary point whose second-order condition
-            was not checked); ``False`` when the exact Hessian took over again
-            and the gains and status are its own.
+            gains come from the convex model (the solve stopped on it, or the
+            exact Hessian could complete no pass about its minimum; never with
+            ``converged``, which the exact Hessian confirms); ``False`` when
+            the exact Hessian took over again and gave the gains.
         request_id: The ``x-request-id`` of the answer (not part of equality).
     """
 
