@@ -43,21 +43,29 @@ unsafe impl GlobalAlloc for Counting {
 #[global_allocator]
 static GLOBAL: Counting = Counting;
 
+/// Allocations made by a second solve of `problem` on a warm solver.
+fn allocations_of_a_warm_solve(
+    problem: &common::Seed,
+    options: &Options,
+) -> (usize, ilqr::Summary) {
+    let n = problem.horizon;
+    let hover = common::hover(n);
+    let never = AtomicBool::new(false);
+    let mut solver = Solver::new(n);
+    // The first solve may size the trace buffer.
+    solver.solve(problem, &hover, options, &never).unwrap();
+
+    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    COUNTING.with(|c| c.set(true));
+    let s = solver.solve(problem, &hover, options, &never).unwrap();
+    COUNTING.with(|c| c.set(false));
+    (ALLOCATIONS.load(Ordering::SeqCst) - before, s)
+}
+
 #[test]
 fn a_warm_solver_solves_without_allocating() {
-    let problem = common::seed_problem(100, 0.05);
-    let hover = common::hover(100);
-    let options = Options::default();
-    let never = AtomicBool::new(false);
-    let mut solver = Solver::new(100);
-    // The first solve may size the trace buffer.
-    solver.solve(&problem, &hover, &options, &never).unwrap();
-
-    COUNTING.with(|c| c.set(true));
-    let s = solver.solve(&problem, &hover, &options, &never).unwrap();
-    COUNTING.with(|c| c.set(false));
-    let during = ALLOCATIONS.load(Ordering::SeqCst);
-
+    let (during, s) =
+        allocations_of_a_warm_solve(&common::seed_problem(100, 0.05), &Options::default());
     assert_eq!(s.status, Status::Converged);
     assert!(s.iterations > 5);
     // The counter works: the same thread counted while building a Vec.
@@ -71,4 +79,38 @@ fn a_warm_solver_solves_without_allocating() {
         "{during} allocations in a {}-iteration solve",
         s.iterations
     );
+}
+
+/// The other paths of the loop do not allocate either: the convex
+/// fallback and the exact Hessian's check of the convex minimum (the seed
+/// at dt = 10 with a 1e12 obstacle added on its own), and the
+/// least-regularised gains recomputed at the end (the seed with a zero
+/// tolerance, which also falls back, and ends on failed line searches).
+#[test]
+fn the_fallback_and_the_final_gains_do_not_allocate() {
+    let mut steep = common::seed_problem(100, 10.0);
+    steep.cost = steep.cost.with_stage(ilqr::ExpObstacle {
+        center: nalgebra::Vector2::from(common::OBSTACLE),
+        weight: 1e12,
+        position: (0, 1),
+    });
+    let (during, s) = allocations_of_a_warm_solve(&steep, &Options::default());
+    assert_eq!(
+        (s.status, s.convexified_after, s.gains_convex),
+        (Status::Converged, Some(0), false),
+        "{s:?}"
+    );
+    assert_eq!(during, 0, "{during} allocations: {s:?}");
+
+    let exhaustive = Options {
+        tolerance: 0.0,
+        ..Options::default()
+    };
+    let (during, s) = allocations_of_a_warm_solve(&common::seed_problem(100, 0.05), &exhaustive);
+    assert_eq!(s.status, Status::NoProgress, "{s:?}");
+    assert!(
+        s.convexified_after.is_some() && s.gains_regularization == 0.0,
+        "{s:?}"
+    );
+    assert_eq!(during, 0, "{during} allocations: {s:?}");
 }
