@@ -789,10 +789,26 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // definite without μ, else those of the iterate's first pass (the
         // same derivatives and μ, so it succeeds again unless the budget
         // runs out; a failed pass leaves the gains as they were).
+        //
+        // A convex fallback that never moved left the trajectory where the
+        // exact Hessian got stuck, so the exact model's gains are the ones
+        // to give: the seed with a zero tolerance, stuck at its optimum on
+        // round-off, ended on the convex model's.
+        let mut relinearized = false;
+        if status == Status::NoProgress
+            && model == Model::Convex
+            && !moved
+            && gains_current
+            && self
+                .linearize::<false, _, _>(problem, &interrupted)
+                .is_none()
+        {
+            (model, iterate_mu, relinearized) = (Model::Exact, None, true);
+        }
         if matches!(status, Status::NoProgress | Status::MaxIterations) && gains_current {
             let first = iterate_mu.filter(|&first| first > 0.0);
             for mu in std::iter::once(0.0).chain(first) {
-                if mu >= gains_mu {
+                if mu >= gains_mu && !relinearized {
                     break;
                 }
                 if self.backward(mu, &interrupted).is_ok() {
