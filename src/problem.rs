@@ -1087,6 +1087,15 @@ pub fn elide(text: String) -> String {
     )
 }
 
+/// `text` cut to its first `max_chars` characters, with `...` after a cut:
+/// what a one-line message or log line quotes of a client's input.
+pub fn clip(text: &str, max_chars: usize) -> std::borrow::Cow<'_, str> {
+    match text.char_indices().nth(max_chars) {
+        Some((end, _)) => format!("{}...", &text[..end]).into(),
+        None => text.into(),
+    }
+}
+
 /// Take out of `value` the nearest object member at or above `pointer`
 /// that exists, and return its pointer; `None` if there is none (the
 /// pointer is the root).

@@ -279,14 +279,7 @@ impl IntoResponse for ApiError {
         if let Some(secs) = problem.retry_after {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
-        let mut detail: String = problem
-            .detail
-            .chars()
-            .take(MAX_LOGGED_DETAIL_CHARS)
-            .collect();
-        if detail.len() < problem.detail.len() {
-            detail.push_str("...");
-        }
+        let detail = crate::problem::clip(&problem.detail, MAX_LOGGED_DETAIL_CHARS).into_owned();
         res.extensions_mut().insert(LoggedProblem {
             kind: problem.kind,
             title: self.parts().2,

@@ -22,7 +22,7 @@ use utoipa_swagger_ui::SwaggerUi;
 use super::error::{ApiError, LoggedProblem, Problem};
 use super::pool::Ticket;
 use super::{AppState, metrics};
-use crate::problem::{ParseError, ProblemSpec, parse};
+use crate::problem::{ParseError, ProblemSpec, clip, parse};
 use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
 
 /// The OpenAPI document's fixed parts; paths come from the router.
@@ -242,7 +242,7 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                             "request",
                             request_id = %id,
                             method = %req.method(),
-                            uri = %clipped(&req.uri().to_string()),
+                            uri = %clip(&req.uri().to_string(), MAX_LOGGED_URI_CHARS),
                         )
                     }),
             )
@@ -411,15 +411,7 @@ fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
 const MAX_ECHOED_CHARS: usize = 100;
 
 /// Longest URI a log line carries, in characters.
-const MAX_LOGGED_CHARS: usize = 200;
-
-/// `text` cut to [`MAX_LOGGED_CHARS`] characters, marked with `...` when cut.
-fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
-    match text.char_indices().nth(MAX_LOGGED_CHARS) {
-        Some((end, _)) => format!("{}...", &text[..end]).into(),
-        None => text.into(),
-    }
-}
+const MAX_LOGGED_URI_CHARS: usize = 200;
 
 /// A header value or path as echoed in a `detail`, in backquotes: at most
 /// [`MAX_ECHOED_CHARS`] characters of it (a header may be 400 KiB long), a
@@ -427,14 +419,10 @@ fn clipped(text: &str) -> std::borrow::Cow<'_, str> {
 /// the line stays one readable line. JSON escaping is serde_json's.
 fn shown(bytes: &[u8]) -> String {
     let text = String::from_utf8_lossy(bytes);
-    let mut out: String = text
+    let out: String = clip(&text, MAX_ECHOED_CHARS)
         .chars()
-        .take(MAX_ECHOED_CHARS)
         .map(|c| if c.is_control() { '?' } else { c })
         .collect();
-    if text.chars().nth(MAX_ECHOED_CHARS).is_some() {
-        out.push_str("...");
-    }
     format!("`{out}`")
 }
 
@@ -842,7 +830,7 @@ fn not_found_error(method: &axum::http::Method, path: &str) -> ApiError {
     let trimmed = path.trim_end_matches('/');
     let meant = ROUTES
         .iter()
-        .find(|r| r.as_str() == trimmed || r.trim_end_matches('/') == trimmed)
+        .find(|r| r.trim_end_matches('/') == trimmed)
         .or_else(|| {
             ROUTES
                 .iter()

@@ -587,11 +587,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     Err(Unfinished::NotPositiveDefinite) => {
                         increase(&mut mu, &mut delta, options);
                         if mu > options.mu_max {
-                            match fall_back(problem, options, &mut model, moved) {
-                                Err(status) => break 'outer status,
-                                Ok(()) => {
-                                    convexified_after = convexified_after.or(Some(iterations))
-                                }
+                            if let Err(status) = fall_back(
+                                problem,
+                                options,
+                                (&mut model, &mut convexified_after),
+                                (moved, iterations),
+                            ) {
+                                break 'outer status;
                             }
                             // A convergence the last model's last step
                             // claimed is not carried over: the next model
@@ -771,9 +773,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             row.elapsed = start.elapsed();
             self.trace.push(row);
             if mu > options.mu_max {
-                match fall_back(problem, options, &mut model, moved) {
-                    Err(status) => break status,
-                    Ok(()) => convexified_after = convexified_after.or(Some(iterations)),
+                if let Err(status) = fall_back(
+                    problem,
+                    options,
+                    (&mut model, &mut convexified_after),
+                    (moved, iterations),
+                ) {
+                    break status;
                 }
                 (mu, delta, stale, converged, moved) = (options.mu_init, 1.0, true, false, false);
             }
@@ -794,18 +800,19 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // exact Hessian got stuck, so the exact model's gains are the ones
         // to give: the seed with a zero tolerance, stuck at its optimum on
         // round-off, ended on the convex model's.
-        let mut relinearized = false;
-        if status == Status::NoProgress
-            && model == Model::Convex
-            && !moved
-            && gains_current
-            && self
-                .linearize::<false, _, _>(problem, &interrupted)
-                .is_none()
-        {
-            (model, iterate_mu, relinearized) = (Model::Exact, None, true);
+        // A linearisation the budget cut short leaves the derivatives half
+        // updated: no pass may run on them then.
+        let (mut relinearized, mut derivatives_whole) = (false, true);
+        if status == Status::NoProgress && model == Model::Convex && !moved && gains_current {
+            match self.linearize::<false, _, _>(problem, &interrupted) {
+                None => (model, iterate_mu, relinearized) = (Model::Exact, None, true),
+                Some(_) => derivatives_whole = false,
+            }
         }
-        if matches!(status, Status::NoProgress | Status::MaxIterations) && gains_current {
+        if matches!(status, Status::NoProgress | Status::MaxIterations)
+            && gains_current
+            && derivatives_whole
+        {
             let first = iterate_mu.filter(|&first| first > 0.0);
             for mu in std::iter::once(0.0).chain(first) {
                 if mu >= gains_mu && !relinearized {
@@ -1157,9 +1164,10 @@ enum Model {
     Checking,
 }
 
-/// μ has passed μ_max under `model`, `moved` telling whether a step was
-/// accepted since it was chosen. `Ok` switches to the convex expansion
-/// ([`Options::convex_fallback`]) and the caller restarts μ:
+/// μ has passed μ_max under `model` after `iterations`, `moved` telling
+/// whether a step was accepted since the model was chosen. `Ok` switches
+/// to the convex expansion ([`Options::convex_fallback`]), recording the
+/// first switch in `convexified_after`, and the caller restarts μ:
 ///
 /// * from the exact model;
 /// * from the exact model checking a convex minimum, after it moved (it
@@ -1177,8 +1185,8 @@ enum Model {
 fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
     problem: &Problem<D, C, NX>,
     options: &Options,
-    model: &mut Model,
-    moved: bool,
+    (model, convexified_after): (&mut Model, &mut Option<usize>),
+    (moved, iterations): (bool, usize),
 ) -> Result<(), Status> {
     // A cost with nothing to convexify would only repeat what just failed
     // (and report a fallback that changed nothing).
@@ -1190,6 +1198,7 @@ fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
         return Err(Status::NoProgress);
     }
     *model = Model::Convex;
+    convexified_after.get_or_insert(iterations);
     Ok(())
 }
 
