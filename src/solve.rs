@@ -192,6 +192,13 @@ pub struct TraceEntry {
     pub regularization: f64,
     /// Mean over steps of `max_i |d_i| / (|u_i| + 1)`.
     pub feedforward_norm: f64,
+    /// True when the iteration's backward pass used the convex model of
+    /// the cost (obstacles' curvature across their radial direction
+    /// dropped) instead of its exact Hessian: from
+    /// `convexified_after_iteration` on, until the exact Hessian takes over
+    /// again to check the convex model's minimum. False on nearly every
+    /// solve.
+    pub convex_model: bool,
     /// Time since the solve started, ms.
     pub elapsed_ms: f64,
 }
@@ -335,6 +342,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
                 step_size: r.step_size,
                 regularization: r.regularization,
                 feedforward_norm: r.feedforward_norm,
+                convex_model: r.convex_model,
                 elapsed_ms: millis(r.elapsed),
             })
             .collect()

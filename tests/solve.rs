@@ -688,7 +688,7 @@ fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
     let long = spec(json!({
         "horizon": 4000,
         "initial_controls": vec![[4.9051, 4.9051]; 4000],
-        "output": {"trace": false},
+        "output": {"gains": false},
     }));
     let r = solve(&long, None, &cancel).unwrap();
     assert_eq!(r.status.as_str(), "converged", "{:?}", r.status);
@@ -696,6 +696,23 @@ fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
     // The exact Hessian, back to check the convex model's minimum, confirms
     // it (one more step, 1e-9 lower) and gives the gains.
     assert_eq!(r.convex_model_at_end, Some(false));
+    // The trace says which model each iteration used: exact for the first
+    // two, convex from the third, exact again for the check.
+    let convex: Vec<bool> = r
+        .trace
+        .as_ref()
+        .unwrap()
+        .iter()
+        .map(|t| t.convex_model)
+        .collect();
+    let back = convex.iter().rposition(|&c| c).map_or(0, |i| i + 1);
+    assert!(
+        convex[..2] == [false, false]
+            && back < convex.len()
+            && convex[2..back].iter().all(|&c| c)
+            && !convex[back..].contains(&true),
+        "convex model in rows {convex:?}"
+    );
     assert!(
         r.cost < 0.05 * r.initial_cost,
         "{} from {}",

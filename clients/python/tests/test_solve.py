@@ -48,11 +48,16 @@ def test_a_long_flight_reports_the_convex_fallback(client: Client) -> None:
     # after 2 iterations, the convex model of the cost takes over, and the
     # exact Hessian confirms the minimum it finds.
     result = client.solve(
-        {"horizon": 4000, "initial_controls": [[4.9051, 4.9051]] * 4000, "output": {"trace": False}}
+        {"horizon": 4000, "initial_controls": [[4.9051, 4.9051]] * 4000, "output": {"gains": False}}
     )
     assert result.status == "converged"
     assert result.convexified_after_iteration == 2
     assert result.convex_model_at_end is False
+    # Which model each iteration used: exact, exact, convex ..., exact again.
+    assert result.trace is not None
+    convex = [entry.convex_model for entry in result.trace]
+    back = max(i for i, c in enumerate(convex) if c) + 1
+    assert convex[:2] == [False, False] and all(convex[2:back]) and not any(convex[back:]), convex
     assert result.cost < 0.05 * result.initial_cost
 
 
@@ -87,6 +92,7 @@ def test_seed_problem_trace(seed_result: SolveResult) -> None:
     assert costs[0] == seed_result.initial_cost
     assert all(later <= earlier for earlier, later in zip(costs, costs[1:])), costs
     assert trace[-1].cost == seed_result.cost
+    assert not any(entry.convex_model for entry in trace)
 
 
 def test_none_and_empty_problem_are_the_seed(client: Client, seed_result: SolveResult) -> None:

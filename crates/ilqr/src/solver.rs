@@ -246,6 +246,11 @@ pub struct TraceRow {
     pub regularization: f64,
     /// Feedforward size: mean over knots of `max_i |d_i| / (|ū_i| + 1)`.
     pub feedforward_norm: f64,
+    /// Whether this iteration's backward pass used the cost's convex
+    /// expansion ([`Cost::stage_expand_convex`]) instead of its exact
+    /// Hessian: after a fall back ([`Options::convex_fallback`]) and until
+    /// the exact Hessian takes over again to check the convex minimum.
+    pub convex_model: bool,
     /// Time since the solve started.
     pub elapsed: Duration,
 }
@@ -697,6 +702,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 step_size: 0.0,
                 regularization: mu,
                 feedforward_norm: ff_norm,
+                convex_model: model == Model::Convex,
                 elapsed: Duration::ZERO,
             };
             let mut accepted = false;

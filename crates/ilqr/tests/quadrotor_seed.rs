@@ -52,9 +52,10 @@ fn tracking(goal: SVector<f64, 6>, q: f64, r: f64, qf: f64) -> ilqr::Objective<6
 
 #[test]
 fn seed_converges_to_the_reference_optimum() {
-    let (_, s) = solve_seed();
+    let (solver, s) = solve_seed();
     assert_eq!(s.status, Status::Converged);
     assert_eq!(s.convexified_after, None, "the exact Hessian throughout");
+    assert!(solver.trace().iter().all(|r| !r.convex_model));
     let rel = (s.cost - SEED_OPTIMUM).abs() / SEED_OPTIMUM;
     assert!(rel < 1e-4, "cost {} is {rel:e} from {SEED_OPTIMUM}", s.cost);
     assert!(s.initial_cost > 1e6, "hover start is far from optimal");
@@ -418,7 +419,9 @@ fn a_very_long_flight_falls_back_to_the_convex_expansion() {
 /// there, `Converged` after 21 iterations at a cost 1.9e-6 above IPOPT's
 /// 21611203310.7 (a review's run, tolerance 1e-9); the exact Hessian, back
 /// to check that point, now goes on to within 1e-8 of it, and the result
-/// says the exact model gave the gains.
+/// says the exact model gave the gains. The trace says which model each
+/// iteration used: the convex one from the first, then the exact one to
+/// the end.
 #[test]
 fn the_exact_hessian_checks_the_convex_models_minimum() {
     let mut problem = seed_problem(100, 10.0);
@@ -427,12 +430,18 @@ fn the_exact_hessian_checks_the_convex_models_minimum() {
         weight: 1e12,
         position: (0, 1),
     });
-    let (_, s) = solve_problem(&problem, &Options::default());
+    let (solver, s) = solve_problem(&problem, &Options::default());
     assert_eq!(s.status, Status::Converged, "{s:?}");
     assert_eq!(
         (s.convexified_after, s.gains_convex),
         (Some(0), false),
         "{s:?}"
+    );
+    let convex: Vec<bool> = solver.trace().iter().map(|r| r.convex_model).collect();
+    let switch = convex.iter().position(|&c| !c).unwrap_or(convex.len());
+    assert!(
+        switch > 0 && switch < convex.len() && !convex[switch..].contains(&true),
+        "convex model in rows {convex:?}"
     );
     let ipopt = 21611203310.7;
     assert!((s.cost - ipopt) / ipopt < 1e-8, "{s:?}");

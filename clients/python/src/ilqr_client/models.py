@@ -400,6 +400,11 @@ class TraceEntry:
         regularization: Levenberg–Marquardt regularisation μ of the backward pass.
         feedforward_norm: Mean over steps of ``max_i |d_i| / (|u_i| + 1)``.
         elapsed_ms: Time since the solve started, in ms.
+        convex_model: ``True`` when the iteration's backward pass used the
+            convex model of the cost instead of its exact Hessian (after a
+            fallback, see ``SolveResult.convexified_after_iteration``);
+            ``False`` on nearly every solve; ``None`` from a service too old
+            to report it.
     """
 
     iteration: int
@@ -410,6 +415,7 @@ class TraceEntry:
     regularization: float
     feedforward_norm: float
     elapsed_ms: float
+    convex_model: Optional[bool] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/trace/-") -> "TraceEntry":
@@ -418,8 +424,12 @@ class TraceEntry:
             raise ValueError(f"{where}: expected an object")
         values: Dict[str, Any] = {}
         for f in fields(cls):
-            raw = _require(data, f.name, where)
             path = f"{where}/{f.name}"
+            if f.name == "convex_model":
+                raw = data.get(f.name)
+                values[f.name] = None if raw is None else _bool(raw, path)
+                continue
+            raw = _require(data, f.name, where)
             values[f.name] = _int(raw, path) if f.name == "iteration" else _float(raw, path)
         return cls(**values)
 
