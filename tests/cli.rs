@@ -77,21 +77,45 @@ fn settings_out_of_range_are_rejected_before_serving() {
         ),
         (
             &["--max-body-bytes", "0"],
-            "--max-body-bytes / ILQR_MAX_BODY_BYTES: expected at least 4096",
+            "invalid value '0' for '--max-body-bytes <MAX_BODY_BYTES>': expected at least 4096",
         ),
-        (&["--default-time-limit-ms", "0"], "--default-time-limit-ms"),
+        (
+            &["--default-time-limit-ms", "0"],
+            "invalid value '0' for '--default-time-limit-ms <DEFAULT_TIME_LIMIT_MS>': \
+             expected at least 1 ms, got 0",
+        ),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
+        // Not numbers, or negative: these said "invalid digit found in
+        // string" and "unexpected argument '-1' found".
+        (
+            &["--queue-capacity", "lots"],
+            "invalid value 'lots' for '--queue-capacity <QUEUE_CAPACITY>': \
+             expected 0 to 65536 waiting solves, got \"lots\"",
+        ),
+        (
+            &["--max-body-bytes", "4MB"],
+            "expected at least 4096 (the default problem takes 0.5 KB), got \"4MB\"",
+        ),
+        (
+            &["--shutdown-grace-secs", "-1"],
+            "invalid value '-1' for '--shutdown-grace-secs <SHUTDOWN_GRACE_SECS>': \
+             expected a whole number of seconds, got \"-1\"",
+        ),
+        (
+            &["--workers", "-2"],
+            "invalid value '-2' for '--workers <WORKERS>': expected 1 to 1024 threads, got \"-2\"",
+        ),
         // These passed, logged "listening", then failed: every connection
         // panicked in hyper's timer, or the pool reserved the whole queue.
         (
             &["--read-timeout-secs", "10000000000000000000"],
-            "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS: expected 1 to 3600 seconds, \
-             got 10000000000000000000",
+            "invalid value '10000000000000000000' for '--read-timeout-secs <READ_TIMEOUT_SECS>': \
+             expected 1 to 3600 seconds, got 10000000000000000000",
         ),
         (
             &["--queue-capacity", "18446744073709551615"],
-            "--queue-capacity / ILQR_QUEUE_CAPACITY: expected at most 65536, \
-             got 18446744073709551615",
+            "invalid value '18446744073709551615' for '--queue-capacity <QUEUE_CAPACITY>': \
+             expected 0 to 65536 waiting solves, got 18446744073709551615",
         ),
         (
             &["--workers", "5000"],
@@ -219,9 +243,9 @@ fn a_bad_value_names_where_it_came_from() {
             .args(args)
             .envs(env.iter().copied())
             // Accepted by mistake, the value would still not start a
-            // server: this limit fails the config check (exit 2, another
-            // message).
-            .env("ILQR_MAX_BODY_BYTES", "1")
+            // server: this limit, valid alone, fails the config check
+            // against the default maximum (exit 2, another message).
+            .env("ILQR_DEFAULT_TIME_LIMIT_MS", "70000")
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
@@ -275,7 +299,7 @@ fn a_variable_that_is_not_utf8_is_named() {
         }
         let out = cmd
             .args(args)
-            .env("ILQR_MAX_BODY_BYTES", "1")
+            .env("ILQR_DEFAULT_TIME_LIMIT_MS", "70000")
             .output()
             .unwrap();
         let stderr = String::from_utf8_lossy(&out.stderr);
@@ -550,55 +574,97 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     assert_eq!(out.status.code(), Some(0), "{out:?}");
 }
 
-/// A `Config` built in code gets the same checks: the service refuses to
-/// start rather than accept horizons its state bounds were not made for.
+/// A `Config` built in code gets the same checks, in the flags' words:
+/// the service refuses to start rather than accept horizons its state
+/// bounds were not made for.
 #[test]
 fn a_config_built_in_code_is_checked_too() {
     use ilqr_service::server::{AppState, Config};
-    for bad in [
-        Config {
-            max_horizon: 20_000,
-            ..Config::default()
-        },
-        Config {
-            max_horizon: 99,
-            ..Config::default()
-        },
-        Config {
-            max_body_bytes: 4095,
-            ..Config::default()
-        },
-        Config {
-            default_time_limit_ms: 0,
-            ..Config::default()
-        },
-        Config {
-            default_time_limit_ms: 70_000,
-            ..Config::default()
-        },
-        Config {
-            read_timeout_secs: 0,
-            ..Config::default()
-        },
-        Config {
-            read_timeout_secs: 3601,
-            ..Config::default()
-        },
-        Config {
-            queue_capacity: 65_537,
-            ..Config::default()
-        },
-        Config {
-            retry_after_secs: 0,
-            ..Config::default()
-        },
-        Config {
-            gzip_level: 10,
-            ..Config::default()
-        },
+    let base = Config::default;
+    for (bad, says) in [
+        (
+            Config {
+                max_horizon: 20_000,
+                ..base()
+            },
+            "--max-horizon / ILQR_MAX_HORIZON: expected an integer from 100 \
+             (the default problem's horizon) to 10000, got 20000",
+        ),
+        (
+            Config {
+                max_horizon: 99,
+                ..base()
+            },
+            "to 10000, got 99",
+        ),
+        (
+            Config {
+                max_body_bytes: 4095,
+                ..base()
+            },
+            "--max-body-bytes / ILQR_MAX_BODY_BYTES: expected at least 4096 \
+             (the default problem takes 0.5 KB), got 4095",
+        ),
+        (
+            Config {
+                default_time_limit_ms: 0,
+                ..base()
+            },
+            "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS: expected at least 1 ms, got 0",
+        ),
+        (
+            Config {
+                default_time_limit_ms: 70_000,
+                ..base()
+            },
+            "(70000) must not exceed --max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS (60000)",
+        ),
+        (
+            Config {
+                read_timeout_secs: 0,
+                ..base()
+            },
+            "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS: expected 1 to 3600 seconds, got 0",
+        ),
+        (
+            Config {
+                read_timeout_secs: 3601,
+                ..base()
+            },
+            "expected 1 to 3600 seconds, got 3601",
+        ),
+        (
+            Config {
+                queue_capacity: 65_537,
+                ..base()
+            },
+            "--queue-capacity / ILQR_QUEUE_CAPACITY: expected 0 to 65536 waiting solves, got 65537",
+        ),
+        (
+            Config {
+                workers: std::num::NonZeroUsize::new(1025),
+                ..base()
+            },
+            "--workers / ILQR_WORKERS: expected 1 to 1024 threads, got 1025",
+        ),
+        (
+            Config {
+                retry_after_secs: 0,
+                ..base()
+            },
+            "--retry-after-secs / ILQR_RETRY_AFTER_SECS: expected at least 1 second, got 0",
+        ),
+        (
+            Config {
+                gzip_level: 10,
+                ..base()
+            },
+            "--gzip-level / ILQR_GZIP_LEVEL: expected 0 (no compression) to 9, got 10",
+        ),
     ] {
         let err = AppState::new(bad.clone()).err().expect("accepted");
         assert_eq!(err.kind(), std::io::ErrorKind::InvalidInput, "{bad:?}");
+        assert!(err.to_string().contains(says), "{bad:?}: {err}");
     }
     assert!(AppState::new(Config::default()).is_ok());
 }

@@ -91,9 +91,7 @@ fn whole_number(value: &str, min: u64, max: u64, expected: &str) -> Result<u64, 
     }
 }
 
-/// `--workers`, `--runtime-threads`: 1 to [`MAX_THREADS`] (the upper
-/// bound is checked here too, so the message is the one
-/// [`Config::check`] gives a `Config` built in code).
+/// `--workers`, `--runtime-threads`: 1 to [`MAX_THREADS`].
 fn parse_threads(value: &str) -> Result<std::num::NonZeroUsize, String> {
     let expected = format!("1 to {MAX_THREADS} threads");
     let n = whole_number(value, 1, MAX_THREADS as u64, &expected)?;
@@ -101,6 +99,69 @@ fn parse_threads(value: &str) -> Result<std::num::NonZeroUsize, String> {
         .ok()
         .and_then(std::num::NonZeroUsize::new)
         .ok_or_else(|| format!("expected {expected}, got {value:?}"))
+}
+
+/// A `usize` flag from `min` to `max`.
+fn whole_usize(value: &str, min: usize, max: usize, expected: &str) -> Result<usize, String> {
+    let n = whole_number(value, min as u64, max as u64, expected)?;
+    usize::try_from(n).map_err(|_| format!("expected {expected}, got {value:?}"))
+}
+
+/// `--queue-capacity`: 0 to [`MAX_QUEUE_CAPACITY`].
+fn parse_queue_capacity(value: &str) -> Result<usize, String> {
+    whole_usize(
+        value,
+        0,
+        MAX_QUEUE_CAPACITY,
+        &format!("0 to {MAX_QUEUE_CAPACITY} waiting solves"),
+    )
+}
+
+/// `--default-time-limit-ms`, `--max-time-limit-ms`: at least 1.
+fn parse_time_limit(value: &str) -> Result<u64, String> {
+    whole_number(value, 1, u64::MAX, "at least 1 ms")
+}
+
+/// `--max-horizon`: below the default horizon, `{}` and the document
+/// served at /problems/default would be refused by the service that
+/// serves it.
+fn parse_max_horizon(value: &str) -> Result<usize, String> {
+    whole_usize(
+        value,
+        DEFAULT_HORIZON,
+        DEFAULT_MAX_HORIZON,
+        &format!(
+            "an integer from {DEFAULT_HORIZON} (the default problem's horizon) to \
+             {DEFAULT_MAX_HORIZON}"
+        ),
+    )
+}
+
+/// `--max-body-bytes`: at least [`MIN_BODY_BYTES`].
+fn parse_max_body_bytes(value: &str) -> Result<usize, String> {
+    whole_usize(
+        value,
+        MIN_BODY_BYTES,
+        usize::MAX,
+        &format!("at least {MIN_BODY_BYTES} (the default problem takes 0.5 KB)"),
+    )
+}
+
+/// `--shutdown-grace-secs`: any whole number of seconds (0 cancels
+/// in-flight solves at once; a huge one waits for them, since tokio's
+/// timer saturates instead of overflowing).
+fn parse_grace(value: &str) -> Result<u64, String> {
+    whole_number(value, 0, u64::MAX, "a whole number of seconds")
+}
+
+/// `--read-timeout-secs`: 1 to [`MAX_READ_TIMEOUT_SECS`].
+fn parse_read_timeout(value: &str) -> Result<u64, String> {
+    whole_number(
+        value,
+        1,
+        MAX_READ_TIMEOUT_SECS,
+        &format!("1 to {MAX_READ_TIMEOUT_SECS} seconds"),
+    )
 }
 
 /// `--retry-after-secs`: at least 1 (`Retry-After: 0` invites an
@@ -112,6 +173,18 @@ fn parse_retry_after(value: &str) -> Result<u64, String> {
 /// `--gzip-level`: 0 (off) to 9.
 fn parse_gzip_level(value: &str) -> Result<u32, String> {
     whole_number(value, 0, 9, "0 (no compression) to 9").map(|n| n as u32)
+}
+
+/// `value` of a `Config` field (built in code, not parsed) run through its
+/// flag's parser, so that both give the same words, prefixed with `name`.
+fn recheck<T>(
+    name: &str,
+    value: impl std::fmt::Display,
+    parse: fn(&str) -> Result<T, String>,
+) -> Result<(), String> {
+    parse(&value.to_string())
+        .map(drop)
+        .map_err(|e| format!("{name}: {e}"))
 }
 
 /// `cmd` with every argument whose environment variable is set but empty
@@ -143,7 +216,7 @@ pub struct Config {
     #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080", value_parser = parse_bind)]
     pub bind: SocketAddr,
     /// Solver threads, 1 to 1024 (default: the available cores).
-    #[arg(long, env = "ILQR_WORKERS", value_parser = parse_threads)]
+    #[arg(long, env = "ILQR_WORKERS", value_parser = parse_threads, allow_negative_numbers = true)]
     pub workers: Option<std::num::NonZeroUsize>,
     /// Async runtime threads, which accept connections, parse and validate
     /// requests and write answers; solves never run on them (default: cores
@@ -151,51 +224,58 @@ pub struct Config {
     /// microseconds next to a solve's milliseconds; on 2 cores a second
     /// runtime thread doubled the context switches per request and added
     /// ~25 µs of kernel time to each (bench/server_cost.sh). At most 1024.
-    #[arg(long, env = "ILQR_RUNTIME_THREADS", value_parser = parse_threads)]
+    #[arg(long, env = "ILQR_RUNTIME_THREADS", value_parser = parse_threads, allow_negative_numbers = true)]
     pub runtime_threads: Option<std::num::NonZeroUsize>,
     /// Solves that may wait for a worker before new ones get 503, at most
     /// 65536.
-    #[arg(long, env = "ILQR_QUEUE_CAPACITY", default_value_t = 16)]
+    #[arg(long, env = "ILQR_QUEUE_CAPACITY", default_value_t = 16,
+          value_parser = parse_queue_capacity, allow_negative_numbers = true)]
     pub queue_capacity: usize,
     /// Time budget of a solve that sets no `solver.time_limit_ms`, in ms; at
     /// most `--max-time-limit-ms`.
-    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000)]
+    #[arg(long, env = "ILQR_DEFAULT_TIME_LIMIT_MS", default_value_t = 10_000,
+          value_parser = parse_time_limit, allow_negative_numbers = true)]
     pub default_time_limit_ms: u64,
     /// Largest `solver.time_limit_ms` a request may ask for, in ms.
-    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000)]
+    #[arg(long, env = "ILQR_MAX_TIME_LIMIT_MS", default_value_t = 60_000,
+          value_parser = parse_time_limit, allow_negative_numbers = true)]
     pub max_time_limit_ms: u64,
     /// Largest accepted horizon, from 100 (the default problem's, which
     /// `{}` asks for) to 10000 (the solver's own ceiling: the state bounds
     /// that keep every rollout finite assume it).
-    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON)]
+    #[arg(long, env = "ILQR_MAX_HORIZON", default_value_t = DEFAULT_MAX_HORIZON,
+          value_parser = parse_max_horizon, allow_negative_numbers = true)]
     pub max_horizon: usize,
     /// Largest accepted request body, in bytes, at least 4096 (the default
     /// problem takes 0.5 KB, 0.87 KB pretty-printed; N rows of
     /// `initial_controls` add 14–66 bytes each, from short numbers in compact
     /// JSON to full precision pretty-printed).
-    #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024)]
+    #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024,
+          value_parser = parse_max_body_bytes, allow_negative_numbers = true)]
     pub max_body_bytes: usize,
     /// Seconds in-flight solves get to finish on shutdown before they are
     /// cancelled.
-    #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10)]
+    #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10,
+          value_parser = parse_grace, allow_negative_numbers = true)]
     pub shutdown_grace_secs: u64,
     /// `Retry-After` sent with 503 overload answers, in seconds, at least 1.
     #[arg(long, env = "ILQR_RETRY_AFTER_SECS", default_value_t = 1,
-          value_parser = parse_retry_after)]
+          value_parser = parse_retry_after, allow_negative_numbers = true)]
     pub retry_after_secs: u64,
     /// Seconds a client gets to send a request's headers, and again its
     /// body. A connection that stalls longer is closed (headers) or answered
     /// 408 (body), so slow or stuck clients cannot pile up connections or
     /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.12 Mbit/s.
-    /// 1 to 3600 (checked with the other ranges in `Config::check`).
-    #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30)]
+    /// 1 to 3600.
+    #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
+          value_parser = parse_read_timeout, allow_negative_numbers = true)]
     pub read_timeout_secs: u64,
     /// gzip level of answers to clients that accept gzip: 1 (fastest) to 9
     /// (smallest), 0 to send every answer uncompressed. The seed answer
     /// takes ~0.6 ms to compress at 3 (2.1×), more than its 0.45 ms solve:
     /// where clients sit on the same host or a fast LAN, 0 buys throughput.
     #[arg(long, env = "ILQR_GZIP_LEVEL", default_value_t = 3,
-          value_parser = parse_gzip_level)]
+          value_parser = parse_gzip_level, allow_negative_numbers = true)]
     pub gzip_level: u32,
     /// Log format.
     #[arg(long, env = "ILQR_LOG_FORMAT", value_enum, default_value_t = LogFormat::Text)]
@@ -245,48 +325,36 @@ impl Config {
         }
     }
 
-    /// The ranges of the limits and how they relate, in one place for
-    /// parsed flags and a `Config` built in code alike: the CLI runs it
-    /// before binding, and [`AppState::new`] refuses a config that fails it.
+    /// The ranges of the limits (each through its flag's parser, so that a
+    /// `Config` built in code gets the flags' words) and how they relate:
+    /// the CLI runs it before binding, and [`AppState::new`] refuses a
+    /// config that fails it.
     pub fn check(&self) -> Result<(), String> {
-        // Below the default horizon, `{}` and the document served at
-        // /problems/default would be refused by the service that serves it.
-        if !(DEFAULT_HORIZON..=DEFAULT_MAX_HORIZON).contains(&self.max_horizon) {
-            return Err(format!(
-                "--max-horizon / ILQR_MAX_HORIZON: expected an integer from \
-                 {DEFAULT_HORIZON} (the default problem's horizon) to \
-                 {DEFAULT_MAX_HORIZON}, got {}",
-                self.max_horizon
-            ));
-        }
-        if self.max_body_bytes < MIN_BODY_BYTES {
-            return Err(format!(
-                "--max-body-bytes / ILQR_MAX_BODY_BYTES: expected at least \
-                 {MIN_BODY_BYTES} (the default problem takes 0.5 KB), got {}",
-                self.max_body_bytes
-            ));
-        }
-        for (name, ms) in [
-            (
-                "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS",
-                self.default_time_limit_ms,
-            ),
-            (
-                "--max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS",
-                self.max_time_limit_ms,
-            ),
-        ] {
-            if ms == 0 {
-                return Err(format!("{name}: expected at least 1 ms, got 0"));
-            }
-        }
-        if self.queue_capacity > MAX_QUEUE_CAPACITY {
-            return Err(format!(
-                "--queue-capacity / ILQR_QUEUE_CAPACITY: expected at most \
-                 {MAX_QUEUE_CAPACITY}, got {}",
-                self.queue_capacity
-            ));
-        }
+        recheck(
+            "--max-horizon / ILQR_MAX_HORIZON",
+            self.max_horizon,
+            parse_max_horizon,
+        )?;
+        recheck(
+            "--max-body-bytes / ILQR_MAX_BODY_BYTES",
+            self.max_body_bytes,
+            parse_max_body_bytes,
+        )?;
+        recheck(
+            "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS",
+            self.default_time_limit_ms,
+            parse_time_limit,
+        )?;
+        recheck(
+            "--max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS",
+            self.max_time_limit_ms,
+            parse_time_limit,
+        )?;
+        recheck(
+            "--queue-capacity / ILQR_QUEUE_CAPACITY",
+            self.queue_capacity,
+            parse_queue_capacity,
+        )?;
         for (name, threads) in [
             ("--workers / ILQR_WORKERS", self.workers),
             (
@@ -294,33 +362,25 @@ impl Config {
                 self.runtime_threads,
             ),
         ] {
-            if let Some(n) = threads.filter(|n| n.get() > MAX_THREADS) {
-                return Err(format!(
-                    "{name}: expected 1 to {MAX_THREADS} threads, got {n}"
-                ));
+            if let Some(n) = threads {
+                recheck(name, n, parse_threads)?;
             }
         }
-        // The flags' parsers refuse these too; a `Config` built in code
-        // gets the same words.
-        if self.retry_after_secs == 0 {
-            return Err(
-                "--retry-after-secs / ILQR_RETRY_AFTER_SECS: expected at least 1 second, got 0"
-                    .into(),
-            );
-        }
-        if self.gzip_level > 9 {
-            return Err(format!(
-                "--gzip-level / ILQR_GZIP_LEVEL: expected 0 (no compression) to 9, got {}",
-                self.gzip_level
-            ));
-        }
-        if !(1..=MAX_READ_TIMEOUT_SECS).contains(&self.read_timeout_secs) {
-            return Err(format!(
-                "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS: expected 1 to \
-                 {MAX_READ_TIMEOUT_SECS} seconds, got {}",
-                self.read_timeout_secs
-            ));
-        }
+        recheck(
+            "--retry-after-secs / ILQR_RETRY_AFTER_SECS",
+            self.retry_after_secs,
+            parse_retry_after,
+        )?;
+        recheck(
+            "--gzip-level / ILQR_GZIP_LEVEL",
+            self.gzip_level,
+            parse_gzip_level,
+        )?;
+        recheck(
+            "--read-timeout-secs / ILQR_READ_TIMEOUT_SECS",
+            self.read_timeout_secs,
+            parse_read_timeout,
+        )?;
         if self.default_time_limit_ms > self.max_time_limit_ms {
             return Err(format!(
                 "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS ({}) must not exceed \
