@@ -15,6 +15,7 @@ from ilqr_client import (
     MalformedRequestError,
     MethodNotAllowedError,
     NotFoundError,
+    Obstacle,
     OverloadedError,
     PayloadTooLargeError,
     Problem,
@@ -24,6 +25,7 @@ from ilqr_client import (
     UnexpectedResponseError,
     UnsupportedMediaTypeError,
     ValidationError,
+    Weights,
 )
 from ilqr_client.errors import error_from_response, parse_retry_after
 
@@ -154,9 +156,33 @@ def test_a_base_url_without_a_scheme_is_refused_at_once() -> None:
     session.close()
 
 
-def test_nan_is_refused_before_sending(client: Client) -> None:
-    with pytest.raises(ValueError):
+def test_nan_is_refused_before_sending_with_its_pointer(client: Client) -> None:
+    # JSON has no NaN: the client refuses it and says where, which matters
+    # in a 10000-row initial_controls. It used to say only "Out of range
+    # float values are not JSON compliant".
+    with pytest.raises(ValueError, match=r"^/dt: nan cannot be sent"):
         client.solve({"dt": float("nan")})
+    rows = [[4.9, 4.9]] * 5000 + [[4.9, float("-inf")]] + [[4.9, 4.9]] * 4999
+    with pytest.raises(ValueError, match=r"^/initial_controls/5000/1: -inf cannot be sent"):
+        client.solve({"horizon": 10000, "initial_controls": rows})
+    problem = Problem(weights=Weights(state=[1.0, 1.0, float("inf"), 1.0, 1.0, 1.0]))
+    with pytest.raises(ValueError, match=r"^/weights/state/2: inf cannot be sent"):
+        client.solve(problem)
+    with pytest.raises(ValueError, match=r"^/a~1b: nan cannot be sent"):
+        client.solve({"a/b": float("nan")})
+
+
+def test_a_problem_document_missing_a_required_member_names_it() -> None:
+    # It was a TypeError from the dataclass's constructor, with no pointer;
+    # posted as a dict, the service names /obstacles/1/weight.
+    document = {"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}, {"center": [1.0, 2.0]}]}
+    with pytest.raises(ValueError, match=r"^/obstacles/1: missing member 'weight'$"):
+        Problem.from_dict(document)
+    with pytest.raises(ValueError, match=r"^/obstacles: expected an array"):
+        Problem.from_dict({"obstacles": {"center": [1.0, 2.0], "weight": 5.0}})
+    assert Problem.from_dict({"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}]}).obstacles == [
+        Obstacle(center=[1.0, 2.0], weight=5.0)
+    ]
 
 
 def test_unsupported_problem_type(client: Client) -> None:

@@ -80,6 +80,32 @@ def test_seed_problem_gains(seed_result: SolveResult) -> None:
     assert gains.control(k, moved, state, control) == pytest.approx(expected)
     with pytest.raises(ValueError):
         gains.control(k, state[:5], state, control)
+    # Steps are 0..N-1: -1 is not Python's "last", it is a mistake.
+    for bad in (-1, 100):
+        with pytest.raises(IndexError, match=r"step k must be in 0\.\.99"):
+            gains.control(bad, state, state, control)
+
+
+def test_pandas_vectors_and_tables_are_sent_as_arrays(client: Client, seed_result: SolveResult) -> None:
+    # A Series and a DataFrame have a to_dict, which gave {index: value}
+    # objects and a 422 ("expected an array of length 6").
+    pd = pytest.importorskip("pandas")
+    problem = {
+        "initial_state": pd.Series([5.0, 0.0, 0.0, 0.0, 0.0, 0.0], index=list("xyθuvw")),
+        "initial_controls": pd.DataFrame(seed_result.controls, columns=["u1", "u2"]),
+    }
+    assert client.solve(problem).initial_cost == seed_result.cost
+    edited = Problem(initial_state=pd.Series([5.0, 0.0, 0.0, 0.0, 0.0, 0.0]))
+    assert client.solve(edited).cost == seed_result.cost
+
+
+def test_compress_false_asks_for_an_uncompressed_answer(service: ServiceProcess) -> None:
+    for compress, encoding in ((True, "gzip"), (False, None)):
+        seen: list[requests.Response] = []
+        with Client(service.url, compress=compress) as c:
+            c.session.hooks["response"].append(lambda r, *args, **kwargs: seen.append(r))
+            c.solve({})
+        assert seen[-1].headers.get("Content-Encoding") == encoding
 
 
 def test_seed_problem_trace(seed_result: SolveResult) -> None:

@@ -37,7 +37,7 @@ import requests
 
 from ._version import __version__
 from .errors import OverloadedError, UnexpectedResponseError, error_from_response
-from .models import Problem, SolveResult, to_json_value
+from .models import Problem, SolveResult, _non_finite_pointer, to_json_value
 
 __all__ = ["Client", "ProblemLike", "TimeoutSpec"]
 
@@ -49,6 +49,16 @@ ProblemLike = Union[Problem, Mapping[str, Any], None]
 TimeoutSpec = Union[float, Tuple[float, float]]
 
 _JSON = "application/json"
+
+
+def _at(document: Any, pointer: str) -> Any:
+    """The value at a JSON pointer that :func:`_non_finite_pointer` returned."""
+    for token in pointer.split("/")[1:]:
+        if not token:
+            break
+        key = token.replace("~1", "/").replace("~0", "~")
+        document = document[int(key)] if isinstance(document, list) else document[key]
+    return document
 
 
 class Client:
@@ -76,7 +86,12 @@ class Client:
             connection failure (and after an overload answer that carries no
             Retry-After).
         max_retry_wait: Upper bound in seconds on any single wait, whatever
-            Retry-After says.
+            Retry-After says, before the jitter (up to 10 % more).
+        compress: Ask for gzip-compressed answers (``Accept-Encoding: gzip``,
+            as requests does by default). Worth it over slow links: a seed
+            answer shrinks about 2×. On the same host or a fast LAN, pass
+            ``False``: over loopback an N = 1000 round trip (3.8 ms of
+            solving) took 20.5 ms compressed and 15.2 ms not.
 
     Raises:
         ValueError: for a negative ``retries``, ``backoff`` or ``max_retry_wait``,
@@ -97,6 +112,7 @@ class Client:
         *,
         backoff: float = 0.5,
         max_retry_wait: float = 30.0,
+        compress: bool = True,
     ) -> None:
         if retries < 0:
             raise ValueError(f"retries must be >= 0, got {retries}")
@@ -115,6 +131,7 @@ class Client:
         self.retries = retries
         self.backoff = backoff
         self.max_retry_wait = max_retry_wait
+        self.compress = compress
         self._owns_session = session is None
         self.session = session if session is not None else requests.Session()
         if self._owns_session:
@@ -180,8 +197,9 @@ class Client:
             requests.RequestException: transport failures (after retries for
                 connection errors).
             TypeError, ValueError: the problem cannot be encoded as JSON
-                (e.g. it contains NaN or infinity), or ``request_id`` is not
-                one the service would keep.
+                (a NaN or infinity: the message starts with its JSON
+                pointer), or ``request_id`` is not one the service would
+                keep.
         """
         if request_id is not None and not (
             0 < len(request_id) <= 128 and all("!" <= c <= "~" for c in request_id)
@@ -189,10 +207,14 @@ class Client:
             raise ValueError(
                 f"request_id must be 1 to 128 visible ASCII characters (no spaces), got {request_id!r}"
             )
-        try:
-            body = json.dumps(self._problem_body(problem), allow_nan=False, separators=(",", ":"))
-        except ValueError as exc:
-            raise ValueError(f"the problem cannot be sent as JSON (NaN or infinity?): {exc}") from exc
+        document = self._problem_body(problem)
+        where = _non_finite_pointer(document)
+        if where is not None:
+            raise ValueError(
+                f"{where}: {_at(document, where)!r} cannot be sent: JSON has no NaN or infinity "
+                "(the service takes finite numbers only)"
+            )
+        body = json.dumps(document, allow_nan=False, separators=(",", ":"))
         headers = {"Content-Type": _JSON}
         if request_id is not None:
             headers["x-request-id"] = request_id
@@ -283,6 +305,8 @@ class Client:
         """
         url = self._url(path)
         all_headers = {"Accept": f"{_JSON}, application/problem+json"}
+        if not self.compress:
+            all_headers["Accept-Encoding"] = "identity"
         all_headers.update(headers or {})
         effective_timeout = self.timeout if timeout is None else timeout
         attempt = 0

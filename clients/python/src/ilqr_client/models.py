@@ -19,8 +19,9 @@ Only the shape of responses is checked here; the service validates problems.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
+import math
+from dataclasses import MISSING, dataclass, field, fields, is_dataclass
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
 
 # A vector field accepts a list or tuple of numbers, or a numpy array (sent
 # through its ``tolist``); a matrix field rows of those, or a 2-D array.
@@ -75,19 +76,24 @@ def to_json_value(value: Any) -> Any:
     """Convert a problem value to plain JSON types.
 
     Handles the request dataclasses (via ``to_dict``), mappings, sequences
-    (tuples become lists) and numpy arrays and scalars (via ``tolist``).
+    (tuples become lists), numpy arrays and scalars and pandas Series (via
+    ``tolist``) and pandas DataFrames (their values, row by row).
 
     Raises:
         TypeError: for values that have no JSON form.
     """
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
-    to_dict = getattr(value, "to_dict", None)
-    if callable(to_dict):
-        return to_dict()
+    # Only this module's dataclasses go through ``to_dict``: pandas objects
+    # have one too, which gives a Series as {index: value}, not an array.
+    if is_dataclass(value) and not isinstance(value, type):
+        return value.to_dict()  # type: ignore[attr-defined]
     tolist = getattr(value, "tolist", None)
-    if callable(tolist):  # numpy arrays and numpy scalars
+    if callable(tolist):  # numpy arrays and numpy scalars, pandas Series
         return tolist()
+    to_numpy = getattr(value, "to_numpy", None)
+    if callable(to_numpy):  # a pandas DataFrame: its rows
+        return to_numpy().tolist()
     if isinstance(value, Mapping):
         return {str(key): to_json_value(item) for key, item in value.items()}
     if isinstance(value, (list, tuple)) or (
@@ -109,6 +115,39 @@ def _spec_to_dict(spec: Any) -> Dict[str, Any]:
     for key, value in spec.extra.items():
         out.setdefault(key, to_json_value(value))
     return out
+
+
+def _non_finite_pointer(value: Any, pointer: str = "") -> Optional[str]:
+    """The JSON pointer of the first NaN or infinity in a plain JSON value, if any.
+
+    JSON has no such numbers, so the client refuses to send them; this says
+    where, in a 10000-row ``initial_controls`` as in a weight.
+    """
+    if isinstance(value, float):
+        return None if math.isfinite(value) else (pointer or "/")
+    if isinstance(value, Mapping):
+        for key, item in value.items():
+            escaped = str(key).replace("~", "~0").replace("/", "~1")
+            found = _non_finite_pointer(item, f"{pointer}/{escaped}")
+            if found is not None:
+                return found
+    elif isinstance(value, list):
+        for i, item in enumerate(value):
+            found = _non_finite_pointer(item, f"{pointer}/{i}")
+            if found is not None:
+                return found
+    return None
+
+
+_Spec = TypeVar("_Spec")
+
+
+def _build(cls: Type[_Spec], known: Dict[str, Any], extra: Dict[str, Any], where: str) -> _Spec:
+    """``cls(**known, extra=extra)``, with a missing required member named as the service would."""
+    for f in fields(cls):  # type: ignore[arg-type]
+        if f.default is MISSING and f.default_factory is MISSING and f.name not in known:
+            raise ValueError(f"{where}: missing member {f.name!r}")
+    return cls(**known, extra=extra)  # type: ignore[call-arg]
 
 
 def _split_known(cls: Any, data: Mapping[str, Any], what: str) -> Tuple[Dict[str, Any], Dict[str, Any]]:
@@ -207,7 +246,7 @@ class QuadrotorModel:
     def from_dict(cls, data: Mapping[str, Any]) -> "QuadrotorModel":
         """Build from the JSON object (as in ``GET /problems/default``)."""
         known, extra = _split_known(cls, data, "/model")
-        return cls(**known, extra=extra)
+        return _build(cls, known, extra, "/model")
 
 
 @dataclass
@@ -234,7 +273,7 @@ class Weights:
     def from_dict(cls, data: Mapping[str, Any]) -> "Weights":
         """Build from the JSON object."""
         known, extra = _split_known(cls, data, "/weights")
-        return cls(**known, extra=extra)
+        return _build(cls, known, extra, "/weights")
 
 
 @dataclass
@@ -256,10 +295,14 @@ class Obstacle:
         return _spec_to_dict(self)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "Obstacle":
-        """Build from the JSON object."""
-        known, extra = _split_known(cls, data, "/obstacles/-")
-        return cls(**known, extra=extra)
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/obstacles/-") -> "Obstacle":
+        """Build from the JSON object at ``where``.
+
+        Raises:
+            ValueError: if ``center`` or ``weight`` is missing.
+        """
+        known, extra = _split_known(cls, data, where)
+        return _build(cls, known, extra, where)
 
 
 @dataclass
@@ -289,7 +332,7 @@ class SolverOptions:
     def from_dict(cls, data: Mapping[str, Any]) -> "SolverOptions":
         """Build from the JSON object."""
         known, extra = _split_known(cls, data, "/solver")
-        return cls(**known, extra=extra)
+        return _build(cls, known, extra, "/solver")
 
 
 @dataclass
@@ -314,7 +357,7 @@ class OutputOptions:
     def from_dict(cls, data: Mapping[str, Any]) -> "OutputOptions":
         """Build from the JSON object."""
         known, extra = _split_known(cls, data, "/output")
-        return cls(**known, extra=extra)
+        return _build(cls, known, extra, "/output")
 
 
 @dataclass
@@ -374,7 +417,9 @@ class Problem:
             "weights": Weights.from_dict,
             "solver": SolverOptions.from_dict,
             "output": OutputOptions.from_dict,
-            "obstacles": lambda items: [Obstacle.from_dict(item) for item in items],
+            "obstacles": lambda items: [
+                Obstacle.from_dict(item, f"/obstacles/{i}") for i, item in enumerate(_list(items, "/obstacles"))
+            ],
         }
         for key, parse in parsers.items():
             if known.get(key) is not None:
@@ -499,8 +544,12 @@ class Gains:
             ``ū_k + K_k (x_k − x̄_k)`` as ``[u1, u2]``.
 
         Raises:
+            IndexError: if ``k`` is not in 0..N−1 (a negative ``k`` does not
+                count from the end).
             ValueError: if a state does not have 6 components or the control 2.
         """
+        if not 0 <= k < len(self.feedback):
+            raise IndexError(f"step k must be in 0..{len(self.feedback) - 1}, got {k}")
         if len(state) != STATE_DIM or len(nominal_state) != STATE_DIM:
             raise ValueError(f"states must have {STATE_DIM} components")
         if len(nominal_control) != CONTROL_DIM:
