@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import pickle
 from typing import Any, Dict, List, Optional
 
@@ -22,6 +23,7 @@ from ilqr_client import (
     RequestTimeoutError,
     ServerError,
     ShuttingDownError,
+    SolveResult,
     UnexpectedResponseError,
     UnsupportedMediaTypeError,
     ValidationError,
@@ -300,3 +302,53 @@ def test_errors_survive_pickling() -> None:
     assert copy.pointers == ["/dt", "/horizon"]
     assert copy.request_id == "r-7" and copy.status == 422
     assert str(copy) == str(error)
+
+
+def test_an_answer_of_the_wrong_shape_is_named_by_pointer(seed_result: SolveResult) -> None:
+    # Answers take a fast path (every number a float); anything else falls
+    # back to the checks that name the member, and whole numbers still read.
+    good = _answer_of(seed_result)
+    assert SolveResult.from_dict(good) == seed_result
+    whole = copy.deepcopy(good)
+    whole["states"][0] = [5, 0, 0, 0, 0, 0]
+    parsed = SolveResult.from_dict(whole).states[0]
+    assert parsed == [5.0, 0.0, 0.0, 0.0, 0.0, 0.0] and all(type(v) is float for v in parsed)
+    for path, value, message in [
+        (("states", 3), [0.0] * 5, r"^/states/3: expected 6 numbers, got 5$"),
+        (("controls", 2, 1), "x", r"^/controls/2/1: expected a number, got 'x'$"),
+        (("controls", 7), {"u1": 1.0}, r"^/controls/7: expected an array, got dict$"),
+        (("gains", "feedback", 4, 1, 5), True, r"^/gains/feedback/4/1/5: expected a number, got True$"),
+        (("gains", "feedforward", 9), [0.0], r"^/gains/feedforward/9: expected 2 numbers, got 1$"),
+        (("closest_approach", 0), None, r"^/closest_approach/0: expected a number, got None$"),
+    ]:
+        bad = copy.deepcopy(good)
+        target = bad
+        for key in path[:-1]:
+            target = target[key]
+        target[path[-1]] = value
+        with pytest.raises(ValueError, match=message):
+            SolveResult.from_dict(bad)
+
+
+def _answer_of(result: SolveResult) -> Dict[str, Any]:
+    """The JSON answer a result was parsed from (its members, as the service writes them)."""
+    assert result.gains is not None and result.trace is not None
+    return {
+        "status": result.status,
+        "cost": result.cost,
+        "initial_cost": result.initial_cost,
+        "iterations": result.iterations,
+        "goal_distance": result.goal_distance,
+        "closest_approach": list(result.closest_approach),
+        "states": [list(row) for row in result.states],
+        "controls": [list(row) for row in result.controls],
+        "solve_time_ms": result.solve_time_ms,
+        "queue_time_ms": result.queue_time_ms,
+        "gains": {
+            "feedback": [[list(row) for row in k] for k in result.gains.feedback],
+            "feedforward": [list(row) for row in result.gains.feedforward],
+            "regularization": result.gains.regularization,
+            "about_previous_iterate": result.gains.about_previous_iterate,
+        },
+        "trace": [dict(vars(entry)) for entry in result.trace],
+    }

@@ -21,7 +21,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import MISSING, dataclass, field, fields, is_dataclass
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union, cast
 
 # A vector field accepts a list or tuple of numbers, or a numpy array (sent
 # through its ``tolist``); a matrix field rows of those, or a 2-D array.
@@ -187,7 +187,24 @@ def _list(value: Any, where: str) -> List[Any]:
     return value
 
 
+def _floats(value: Any, length: Optional[int]) -> bool:
+    """Whether ``value`` is already a list of floats of the right length.
+
+    The service writes every number of its arrays as a float, so answers
+    take this path: it checks each number without the per-number calls and
+    pointer strings of the slow path, which cost more than decoding the JSON
+    (0.6 ms against 0.4 ms for the seed's answer).
+    """
+    return (
+        type(value) is list
+        and (length is None or len(value) == length)
+        and all(type(item) is float for item in value)
+    )
+
+
 def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]:
+    if _floats(value, length):
+        return cast(List[float], value)
     items = _list(value, where)
     if length is not None and len(items) != length:
         raise ValueError(f"{where}: expected {length} numbers, got {len(items)}")
@@ -195,7 +212,11 @@ def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]
 
 
 def _matrix(value: Any, where: str, columns: Optional[int] = None) -> List[List[float]]:
-    return [_vector(row, f"{where}/{i}", columns) for i, row in enumerate(_list(value, where))]
+    rows = _list(value, where)
+    return [
+        row if _floats(row, columns) else _vector(row, f"{where}/{i}", columns)
+        for i, row in enumerate(rows)
+    ]
 
 
 def _require(data: Mapping[str, Any], key: str, where: str) -> Any:
