@@ -107,3 +107,26 @@ def test_gains_fields_are_parsed_strictly() -> None:
         Gains.from_dict({**base, "about_previous_iterate": "true"})
     with pytest.raises(ValueError, match=r"/gains/regularization"):
         Gains.from_dict({**base, "regularization": "x"})
+
+
+def test_editing_an_expanded_problem_type_checks_as_the_readme_shows() -> None:
+    # The README's idiom for editing default_problem()'s answer: the fields
+    # are Optional and obstacles a Sequence, so append() and attribute
+    # access on a field would not type-check. mypy --strict checks this file.
+    import dataclasses
+
+    problem = Problem.from_dict(
+        {
+            "obstacles": [{"center": [4.5, 4.5], "weight": 1000}],
+            "weights": {"state": [1] * 6, "control": [0.1, 0.1], "terminal": [5e4] * 6},
+        }
+    )
+    problem.obstacles = [*(problem.obstacles or []), Obstacle(center=[2.0, 6.0], weight=500.0)]
+    assert problem.weights is not None
+    problem.weights = dataclasses.replace(problem.weights, terminal=[1e5] * 6)
+    doc = problem.to_dict()
+    assert doc["obstacles"] == [
+        {"center": [4.5, 4.5], "weight": 1000},
+        {"center": [2.0, 6.0], "weight": 500.0},
+    ]
+    assert doc["weights"] == {"state": [1] * 6, "control": [0.1, 0.1], "terminal": [1e5] * 6}
