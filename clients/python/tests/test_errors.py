@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import pickle
 from typing import Any, Dict, List, Optional
 
@@ -30,6 +31,7 @@ from ilqr_client import (
     Weights,
 )
 from ilqr_client.errors import error_from_response, parse_retry_after
+from ilqr_client.models import to_json_value
 
 
 @pytest.mark.parametrize(
@@ -172,6 +174,10 @@ def test_nan_is_refused_before_sending_with_its_pointer(client: Client) -> None:
         client.solve(problem)
     with pytest.raises(ValueError, match=r"^/a~1b: nan cannot be sent"):
         client.solve({"a/b": float("nan")})
+    # An empty key is a pointer token too ("/weights/" is the member "" of
+    # /weights): the message quotes that value, not the whole object.
+    with pytest.raises(ValueError, match=r"^/weights/: inf cannot be sent"):
+        client.solve({"weights": {"": float("inf")}})
 
 
 def test_a_problem_document_missing_a_required_member_names_it() -> None:
@@ -185,6 +191,28 @@ def test_a_problem_document_missing_a_required_member_names_it() -> None:
     assert Problem.from_dict({"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}]}).obstacles == [
         Obstacle(center=[1.0, 2.0], weight=5.0)
     ]
+    # A tuple of obstacles is an array, as everywhere else in a problem.
+    assert Problem.from_dict({"obstacles": ({"center": [1.0, 2.0], "weight": 5.0},)}).obstacles == [
+        Obstacle(center=[1.0, 2.0], weight=5.0)
+    ]
+    # A member that should be an object names itself; values are the
+    # service's to check (a 422 with the same pointer).
+    with pytest.raises(TypeError, match=r"^/model: expected an object, got int$"):
+        Problem.from_dict({"model": 5})
+    with pytest.raises(TypeError, match=r"^/obstacles/0: expected an object, got int$"):
+        Problem.from_dict({"obstacles": [5]})
+
+
+def test_only_the_clients_own_request_types_are_sent_through_to_dict() -> None:
+    # Any dataclass used to go through .to_dict(): one of the caller's own
+    # raised AttributeError instead of the documented TypeError.
+    @dataclasses.dataclass
+    class Point:
+        x: float
+
+    with pytest.raises(TypeError, match=r"^cannot send a Point as JSON"):
+        to_json_value({"center": Point(1.0)})
+    assert to_json_value({"weights": Weights(control=(0.2, 0.2))}) == {"weights": {"control": [0.2, 0.2]}}
 
 
 def test_unsupported_problem_type(client: Client) -> None:
@@ -328,6 +356,27 @@ def test_an_answer_of_the_wrong_shape_is_named_by_pointer(seed_result: SolveResu
         target[path[-1]] = value
         with pytest.raises(ValueError, match=message):
             SolveResult.from_dict(bad)
+
+
+def test_a_parsed_answer_shares_no_list_with_its_document(seed_result: SolveResult) -> None:
+    # The fast path once returned the document's own lists: editing the
+    # dict changed the frozen result, and two results parsed from one dict
+    # changed together.
+    document = _answer_of(seed_result)
+    first = SolveResult.from_dict(document)
+    second = SolveResult.from_dict(document)
+    assert first.gains is not None and second.gains is not None
+    document["states"][1][0] = 1e9
+    document["controls"][0][0] = 1e9
+    document["closest_approach"][0] = 1e9
+    document["gains"]["feedback"][0][0][0] = 1e9
+    document["gains"]["feedforward"][0][0] = 1e9
+    assert first == seed_result and second == seed_result
+    first.states[1][0] = -1.0
+    first.gains.feedback[0][0][0] = -1.0
+    assert second.states[1][0] == seed_result.states[1][0]
+    assert seed_result.gains is not None
+    assert second.gains.feedback[0][0][0] == seed_result.gains.feedback[0][0][0]
 
 
 def _answer_of(result: SolveResult) -> Dict[str, Any]:

@@ -54,8 +54,6 @@ _JSON = "application/json"
 def _at(document: Any, pointer: str) -> Any:
     """The value at a JSON pointer that :func:`_non_finite_pointer` returned."""
     for token in pointer.split("/")[1:]:
-        if not token:
-            break
         key = token.replace("~1", "/").replace("~0", "~")
         document = document[int(key)] if isinstance(document, list) else document[key]
     return document
@@ -208,13 +206,18 @@ class Client:
                 f"request_id must be 1 to 128 visible ASCII characters (no spaces), got {request_id!r}"
             )
         document = self._problem_body(problem)
-        where = _non_finite_pointer(document)
-        if where is not None:
+        try:
+            body = json.dumps(document, allow_nan=False, separators=(",", ":"))
+        except ValueError:
+            # Only now look for where: the walk formats a pointer per number,
+            # which costs more than the encoding itself on long horizons.
+            where = _non_finite_pointer(document)
+            if where is None:
+                raise
             raise ValueError(
-                f"{where}: {_at(document, where)!r} cannot be sent: JSON has no NaN or infinity "
-                "(the service takes finite numbers only)"
-            )
-        body = json.dumps(document, allow_nan=False, separators=(",", ":"))
+                f"{where or '(the document)'}: {_at(document, where)!r} cannot be sent: JSON has no "
+                "NaN or infinity (the service takes finite numbers only)"
+            ) from None
         headers = {"Content-Type": _JSON}
         if request_id is not None:
             headers["x-request-id"] = request_id

@@ -20,8 +20,8 @@ Only the shape of responses is checked here; the service validates problems.
 from __future__ import annotations
 
 import math
-from dataclasses import MISSING, dataclass, field, fields, is_dataclass
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union, cast
+from dataclasses import MISSING, dataclass, field, fields
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
 
 # A vector field accepts a list or tuple of numbers, or a numpy array (sent
 # through its ``tolist``); a matrix field rows of those, or a 2-D array.
@@ -84,10 +84,11 @@ def to_json_value(value: Any) -> Any:
     """
     if value is None or isinstance(value, (bool, int, float, str)):
         return value
-    # Only this module's dataclasses go through ``to_dict``: pandas objects
-    # have one too, which gives a Series as {index: value}, not an array.
-    if is_dataclass(value) and not isinstance(value, type):
-        return value.to_dict()  # type: ignore[attr-defined]
+    # Only this module's request dataclasses go through ``to_dict``: pandas
+    # objects have one too, which gives a Series as {index: value}, not an
+    # array. Any other dataclass falls through to the TypeError below.
+    if isinstance(value, _REQUEST_TYPES):
+        return value.to_dict()
     tolist = getattr(value, "tolist", None)
     if callable(tolist):  # numpy arrays and numpy scalars, pandas Series
         return tolist()
@@ -124,7 +125,7 @@ def _non_finite_pointer(value: Any, pointer: str = "") -> Optional[str]:
     where, in a 10000-row ``initial_controls`` as in a weight.
     """
     if isinstance(value, float):
-        return None if math.isfinite(value) else (pointer or "/")
+        return None if math.isfinite(value) else pointer
     if isinstance(value, Mapping):
         for key, item in value.items():
             escaped = str(key).replace("~", "~0").replace("/", "~1")
@@ -187,6 +188,13 @@ def _list(value: Any, where: str) -> List[Any]:
     return value
 
 
+def _items(value: Any, where: str) -> Sequence[Any]:
+    """A request-side array: a list, a tuple or any other non-string sequence."""
+    if isinstance(value, (str, bytes, bytearray)) or not isinstance(value, Sequence):
+        raise ValueError(f"{where}: expected an array, got {type(value).__name__}")
+    return value
+
+
 def _floats(value: Any, length: Optional[int]) -> bool:
     """Whether ``value`` is already a list of floats of the right length.
 
@@ -204,7 +212,9 @@ def _floats(value: Any, length: Optional[int]) -> bool:
 
 def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]:
     if _floats(value, length):
-        return cast(List[float], value)
+        # A copy, as the slow path makes: a frozen result must not share
+        # its lists with the dict it was parsed from, or with another result.
+        return list(value)
     items = _list(value, where)
     if length is not None and len(items) != length:
         raise ValueError(f"{where}: expected {length} numbers, got {len(items)}")
@@ -214,7 +224,7 @@ def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]
 def _matrix(value: Any, where: str, columns: Optional[int] = None) -> List[List[float]]:
     rows = _list(value, where)
     return [
-        row if _floats(row, columns) else _vector(row, f"{where}/{i}", columns)
+        list(row) if _floats(row, columns) else _vector(row, f"{where}/{i}", columns)
         for i, row in enumerate(rows)
     ]
 
@@ -439,13 +449,17 @@ class Problem:
             "solver": SolverOptions.from_dict,
             "output": OutputOptions.from_dict,
             "obstacles": lambda items: [
-                Obstacle.from_dict(item, f"/obstacles/{i}") for i, item in enumerate(_list(items, "/obstacles"))
+                Obstacle.from_dict(item, f"/obstacles/{i}") for i, item in enumerate(_items(items, "/obstacles"))
             ],
         }
         for key, parse in parsers.items():
             if known.get(key) is not None:
                 known[key] = parse(known[key])
         return cls(**known, extra=extra)
+
+
+#: The dataclasses :func:`to_json_value` serialises with their ``to_dict``.
+_REQUEST_TYPES = (QuadrotorModel, Weights, Obstacle, SolverOptions, OutputOptions, Problem)
 
 
 # --------------------------------------------------------------------------- #
