@@ -117,6 +117,17 @@ fn settings_out_of_range_are_rejected_before_serving() {
             "invalid value '18446744073709551615' for '--queue-capacity <QUEUE_CAPACITY>': \
              expected 0 to 65536 waiting solves, got 18446744073709551615",
         ),
+        // Past u64: the range alone would read as satisfied.
+        (
+            &["--default-time-limit-ms", "99999999999999999999"],
+            "invalid value '99999999999999999999' for '--default-time-limit-ms \
+             <DEFAULT_TIME_LIMIT_MS>': expected at least 1 ms, got 99999999999999999999: \
+             more than 18446744073709551615",
+        ),
+        (
+            &["--queue-capacity", "99999999999999999999"],
+            "expected 0 to 65536 waiting solves, got 99999999999999999999: more than 65536",
+        ),
         (
             &["--workers", "5000"],
             "invalid value '5000' for '--workers <WORKERS>': expected 1 to 1024 threads, got 5000",

@@ -87,6 +87,11 @@ fn whole_number(value: &str, min: u64, max: u64, expected: &str) -> Result<u64, 
     match value.parse::<u64>() {
         Ok(n) if (min..=max).contains(&n) => Ok(n),
         Ok(n) => Err(format!("expected {expected}, got {n}")),
+        // Past u64, the range alone would read as satisfied ("at least 1
+        // ms, got 99999999999999999999").
+        Err(e) if *e.kind() == std::num::IntErrorKind::PosOverflow => {
+            Err(format!("expected {expected}, got {value}: more than {max}"))
+        }
         Err(_) => Err(format!("expected {expected}, got {value:?}")),
     }
 }
