@@ -64,9 +64,12 @@ fn poll_due(done: usize) -> bool {
     (done + 1).is_multiple_of(POLL_EVERY)
 }
 
-/// Trace rows reserved before the loop: 10000 rows, 720 KB. The loop
-/// allocates only if a solve runs more iterations than that.
+/// Trace rows reserved before the loop: 10000 rows of 80 B, 800 KB. The
+/// loop allocates only if a solve runs more iterations than that.
 const TRACE_RESERVE: usize = 10_000;
+// The size above, kept true: a field added to `TraceRow` fails here first.
+#[cfg(target_pointer_width = "64")]
+const _: () = assert!(std::mem::size_of::<TraceRow>() == 80);
 
 /// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
 /// `dynamics`, starting from `x0`.
@@ -228,7 +231,11 @@ pub enum Status {
 }
 
 /// One iteration of the solve, as recorded in the trace.
+///
+/// `non_exhaustive`: the solver makes these, callers read them, so a field
+/// added later (as `convex_model` was) breaks no caller.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct TraceRow {
     /// 1-based iteration number.
     pub iteration: usize,
@@ -256,7 +263,11 @@ pub struct TraceRow {
 }
 
 /// What a solve reports besides the trajectory, which stays in the [`Solver`].
+///
+/// `non_exhaustive`, as [`TraceRow`]: constraint violations, for one, will
+/// be added here.
 #[derive(Debug, Clone, Copy, PartialEq)]
+#[non_exhaustive]
 pub struct Summary {
     /// How the solve ended.
     pub status: Status,
@@ -496,7 +507,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // Everything that may allocate happens here, before the loop.
         self.resize(n);
         self.trace.clear();
-        // Up to TRACE_RESERVE rows up front (72 B each): reserving
+        // Up to TRACE_RESERVE rows up front (80 B each): reserving
         // `max_iterations` itself would let a large cap, meant to leave the
         // stop to a time limit, abort the process on allocation. A solve that
         // runs past the reserve grows the trace in the loop, by doubling.
