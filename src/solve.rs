@@ -194,10 +194,11 @@ pub struct TraceEntry {
     pub feedforward_norm: f64,
     /// True when the iteration's backward pass used the convex model of
     /// the cost (obstacles' curvature across their radial direction
-    /// dropped) instead of its exact Hessian: from
-    /// `convexified_after_iteration` on, until the exact Hessian takes over
-    /// again to check the convex model's minimum. False on nearly every
-    /// solve.
+    /// dropped) instead of its exact Hessian: in the iterations after
+    /// `convexified_after_iteration` (the first is iteration
+    /// `convexified_after_iteration + 1`), until the exact Hessian takes
+    /// over again to check the convex model's minimum; true again if it
+    /// falls back a second time. False on nearly every solve.
     pub convex_model: bool,
     /// Time since the solve started, ms.
     pub elapsed_ms: f64,
