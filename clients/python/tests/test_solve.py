@@ -84,6 +84,10 @@ def test_seed_problem_gains(seed_result: SolveResult) -> None:
     for bad in (-1, 100):
         with pytest.raises(IndexError, match=r"step k must be in 0\.\.99"):
             gains.control(bad, state, state, control)
+    # A step is an integer: True read as step 1, 1.0 failed inside list indexing.
+    for not_a_step in (True, 1.0, "1"):
+        with pytest.raises(TypeError, match=r"step k must be an integer"):
+            gains.control(not_a_step, state, state, control)  # type: ignore[arg-type]
 
 
 def test_pandas_vectors_and_tables_are_sent_as_arrays(client: Client, seed_result: SolveResult) -> None:

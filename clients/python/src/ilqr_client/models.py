@@ -20,6 +20,7 @@ Only the shape of responses is checked here; the service validates problems.
 from __future__ import annotations
 
 import math
+import operator
 from dataclasses import MISSING, dataclass, field, fields
 from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
 
@@ -581,8 +582,13 @@ class Gains:
         Raises:
             IndexError: if ``k`` is not in 0..N−1 (a negative ``k`` does not
                 count from the end).
+            TypeError: if ``k`` is not an integer (``True`` and ``1.0`` are
+                not steps; numpy integers are).
             ValueError: if a state does not have 6 components or the control 2.
         """
+        if isinstance(k, bool) or not hasattr(type(k), "__index__"):
+            raise TypeError(f"step k must be an integer, got {k!r}")
+        k = operator.index(k)
         if not 0 <= k < len(self.feedback):
             raise IndexError(f"step k must be in 0..{len(self.feedback) - 1}, got {k}")
         if len(state) != STATE_DIM or len(nominal_state) != STATE_DIM:
