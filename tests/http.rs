@@ -1068,7 +1068,11 @@ async fn shutdown_drains_in_flight_solves_then_stops() {
 
     // Draining: not ready, no new solves, but the running one finishes.
     problem_of(s.get("/readyz").await, StatusCode::SERVICE_UNAVAILABLE).await;
-    let p = problem_of(s.post(&json!({})).await, StatusCode::SERVICE_UNAVAILABLE).await;
+    let refused = s.post(&json!({})).await;
+    // Closed after the answer, so a pooled client's next request goes to
+    // another replica instead of this one.
+    assert_eq!(refused.headers()["connection"], "close");
+    let p = problem_of(refused, StatusCode::SERVICE_UNAVAILABLE).await;
     assert_eq!(p["type"], "urn:ilqr-service:shutting-down");
     let r: Value = inflight.await.unwrap().json().await.unwrap();
     assert_eq!(r["status"], "time_limit", "the solve ran to its own budget");

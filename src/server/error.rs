@@ -279,6 +279,14 @@ impl IntoResponse for ApiError {
         if let Some(secs) = problem.retry_after {
             headers.insert(header::RETRY_AFTER, HeaderValue::from(secs));
         }
+        if matches!(self, Self::ShuttingDown) {
+            // hyper closes the connection after this answer: a pooled
+            // client (requests.Session, a proxy's upstream pool) would
+            // otherwise send its next request down the same connection to
+            // this draining instance until it exits, where the detail says
+            // to retry on another replica.
+            headers.insert(header::CONNECTION, HeaderValue::from_static("close"));
+        }
         let detail = crate::problem::clip(&problem.detail, MAX_LOGGED_DETAIL_CHARS).into_owned();
         res.extensions_mut().insert(LoggedProblem {
             kind: problem.kind,
