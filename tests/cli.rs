@@ -833,6 +833,91 @@ fn a_client_error_is_logged_with_its_reason() {
     }
 }
 
+/// The JSON log's schema, as a typed log store needs it: the solve's
+/// outcome is `solve_status` (a string; `status` is the HTTP status, a
+/// number), the request's span appears once (`span`, no `spans` copy); a
+/// 503 for a full queue leaves no line above `debug` (it wrote a warning
+/// each, 12 MB/s of log at saturation; `solve_rejections_total` counts
+/// them); a `RUST_LOG` that cannot be read is said, not silently replaced;
+/// the "listening" line gives the effective settings.
+#[test]
+fn json_logs_keep_one_type_per_field_and_overload_does_not_flood_them() {
+    let (mut server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["--bind", bind, "--workers", "1", "--queue-capacity", "0"])
+            .args(["--log-format", "json"])
+            .env("RUST_LOG", "info,not[a filter")
+            .stdout(std::process::Stdio::piped())
+            .stderr(std::process::Stdio::null());
+    });
+    let post = |id: &str, body: &str| {
+        format!(
+            "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+             x-request-id: {id}\r\nConnection: close\r\nContent-Length: {}\r\n\r\n{body}",
+            body.len()
+        )
+    };
+    // Runs to its 1.5 s budget (as tests/http.rs's `slow`): 10000 steps,
+    // 100 far obstacles, no tolerance.
+    let obstacles = vec![r#"{"center": [1000, 1000], "weight": 1}"#; 100].join(",");
+    let slow = post(
+        "req-slow",
+        &format!(
+            r#"{{"horizon": 10000, "dt": 0.0005, "obstacles": [{obstacles}],
+                "solver": {{"tolerance": 0, "max_iterations": 10000, "time_limit_ms": 1500}},
+                "output": {{"gains": false, "trace": false}}}}"#
+        ),
+    );
+    let addr = bind.clone();
+    let running = std::thread::spawn(move || exchange(&addr, &slow));
+    // Time for the slow solve to take the only worker (its answer, below,
+    // says whether it did); then, the queue of 0 full, a solve is a 503.
+    // Few attempts: stdout is read only at the end, and a full pipe would
+    // block the logging threads.
+    std::thread::sleep(std::time::Duration::from_millis(300));
+    let rejected = (0..3)
+        .filter(|_| exchange(&bind, &post("req-503", "{}")).starts_with("HTTP/1.1 503"))
+        .count();
+    let slow = running.join().unwrap();
+    assert!(slow.starts_with("HTTP/1.1 200"), "{slow}");
+    assert_eq!(
+        rejected, 3,
+        "a solve was admitted while the only worker was busy"
+    );
+    let logs = stop_and_read_stdout(&mut server);
+    let lines: Vec<serde_json::Value> = logs
+        .lines()
+        .map(|l| serde_json::from_str(l).unwrap_or_else(|e| panic!("{e}: {l}")))
+        .collect();
+    assert!(
+        !logs.contains("req-503"),
+        "a 503 overloaded was logged at info or above: {logs}"
+    );
+    assert!(lines.iter().all(|l| l.get("spans").is_none()), "{logs}");
+    let finished = lines
+        .iter()
+        .find(|l| l["message"] == "solve finished")
+        .unwrap_or_else(|| panic!("no solve line: {logs}"));
+    assert!(finished["solve_status"].is_string(), "{finished}");
+    assert!(finished.get("status").is_none(), "{finished}");
+    assert_eq!(finished["span"]["request_id"], "req-slow");
+    let warned = lines
+        .iter()
+        .find(|l| l["level"] == "WARN")
+        .unwrap_or_else(|| panic!("no warning for RUST_LOG: {logs}"));
+    let message = warned["message"].as_str().unwrap();
+    assert!(message.starts_with("RUST_LOG ignored"), "{message}");
+    assert!(message.contains("not[a filter"), "{message}");
+    let listening = lines.iter().find(|l| l["message"] == "listening").unwrap();
+    for setting in [
+        "version",
+        "queue_capacity",
+        "max_time_limit_ms",
+        "shutdown_grace_secs",
+    ] {
+        assert!(listening.get(setting).is_some(), "{setting}: {listening}");
+    }
+}
+
 /// SIGTERM starts a drain that waits for the solves in flight; a second
 /// SIGTERM during it ends the process at once with exit status 143 (the
 /// way out of a long drain at a terminal).

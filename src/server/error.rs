@@ -267,6 +267,8 @@ pub(crate) struct LoggedProblem {
     /// what was wrong and may quote a short value; the body itself is never
     /// logged.
     pub detail: String,
+    /// A 503 for a full queue: logged at `debug` only (see `AccessLog`).
+    pub overloaded: bool,
 }
 
 impl IntoResponse for ApiError {
@@ -292,6 +294,7 @@ impl IntoResponse for ApiError {
             kind: problem.kind,
             title: self.parts().2,
             detail,
+            overloaded: matches!(self, Self::Overloaded { .. }),
         });
         res
     }

@@ -703,6 +703,7 @@ impl Default for StopSignals {
 /// The `serve` subcommand: logging, runtime, listener, signals.
 pub fn serve_forever(config: Config) -> std::io::Result<()> {
     init_logging(config.log_format);
+    log_panics();
     let runtime = tokio::runtime::Builder::new_multi_thread()
         .worker_threads(config.runtime_threads())
         .enable_all()
@@ -715,20 +716,61 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         let listener = TcpListener::bind(config.bind).await.map_err(|e| {
             std::io::Error::new(e.kind(), format!("cannot listen on {}: {e}", config.bind))
         })?;
+        // The effective settings, whichever of flag, variable or default
+        // each came from.
         tracing::info!(
+            version = env!("CARGO_PKG_VERSION"),
             addr = %listener.local_addr()?,
             workers = config.workers(),
             runtime_threads = config.runtime_threads(),
             queue_capacity = config.queue_capacity,
+            default_time_limit_ms = config.default_time_limit_ms,
+            max_time_limit_ms = config.max_time_limit_ms,
+            max_horizon = config.max_horizon,
+            max_body_bytes = config.max_body_bytes,
+            shutdown_grace_secs = config.shutdown_grace_secs,
+            read_timeout_secs = config.read_timeout_secs,
+            gzip_level = config.gzip_level,
             "listening"
         );
         run(listener, state, shutdown_signal()).await
     })
 }
 
+/// A panic's report goes through the log, in its format and in the span of
+/// the request that caused it (the worker enters it), with its location;
+/// the default hook wrote plain text to stderr, outside a JSON log. The
+/// backtrace is included when `RUST_BACKTRACE` asks for one. Panics are
+/// still caught: a 500 for the request, and the thread goes on.
+fn log_panics() {
+    std::panic::set_hook(Box::new(|info| {
+        let payload = info.payload();
+        let message = payload
+            .downcast_ref::<&str>()
+            .copied()
+            .or_else(|| payload.downcast_ref::<String>().map(String::as_str))
+            .unwrap_or("(not a string)");
+        let location = info.location().map(ToString::to_string).unwrap_or_default();
+        let backtrace = std::backtrace::Backtrace::capture();
+        if backtrace.status() == std::backtrace::BacktraceStatus::Captured {
+            tracing::error!(message, location, backtrace = %backtrace, "panic");
+        } else {
+            tracing::error!(message, location, "panic");
+        }
+    }));
+}
+
 fn init_logging(format: LogFormat) {
     use tracing_subscriber::EnvFilter;
-    let filter = EnvFilter::try_from_default_env().unwrap_or_else(|_| EnvFilter::new("info"));
+    // Unset or empty: `info`. Set but unreadable: `info` too, said once
+    // logging works (it used to fall back silently).
+    let (filter, rejected) = match std::env::var(EnvFilter::DEFAULT_ENV) {
+        Ok(v) if !v.trim().is_empty() => match EnvFilter::try_new(&v) {
+            Ok(filter) => (filter, None),
+            Err(e) => (EnvFilter::new("info"), Some(format!("{v:?}: {e}"))),
+        },
+        _ => (EnvFilter::new("info"), None),
+    };
     // Colour only on a terminal: `docker logs`, files and log collectors
     // would otherwise get raw escape sequences in every `text` line.
     use std::io::IsTerminal;
@@ -741,8 +783,13 @@ fn init_logging(format: LogFormat) {
             .json()
             .flatten_event(true)
             .with_current_span(true)
+            // The request span only, once: `spans` repeated it.
+            .with_span_list(false)
             .try_init(),
     };
+    if let Some(why) = rejected {
+        tracing::warn!("RUST_LOG ignored, logging at info: {why}");
+    }
 }
 
 /// `GET /healthz` over a plain TCP socket, for container health checks.

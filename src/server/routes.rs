@@ -13,7 +13,7 @@ use tower::ServiceBuilder;
 use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::compression::{CompressionLayer, CompressionLevel};
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
-use tower_http::trace::{DefaultOnFailure, OnResponse, TraceLayer};
+use tower_http::trace::{OnResponse, TraceLayer};
 use utoipa::{OpenApi, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -223,12 +223,14 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
                 TraceLayer::new_for_http()
                     // Every request leaves one line at `info` or above, in its
                     // span (so with its request id), and no more: a solve
-                    // logs "solve finished", a 4xx logs here, a 5xx logs
-                    // through on_failure. Other successes log at `debug`.
+                    // logs "solve finished", an error answer logs here.
+                    // Other successes, and 503 overloaded, log at `debug`.
                     .on_response(AccessLog)
-                    // A 503 under overload is back-pressure working, not a
-                    // failure of this process: warn, don't error.
-                    .on_failure(DefaultOnFailure::new().level(tracing::Level::WARN))
+                    // Not tower-http's line per 5xx: it said only
+                    // "response failed" with a classification string, and
+                    // under overload it wrote a warning per 503 (12 MB/s
+                    // of log at saturation). AccessLog covers 5xx too.
+                    .on_failure(())
                     .make_span_with(|req: &Request| {
                         let id = req
                             .headers()
@@ -267,23 +269,31 @@ impl<B> OnResponse<B> for AccessLog {
     fn on_response(self, res: &axum::http::Response<B>, latency: Duration, _: &tracing::Span) {
         let status = res.status().as_u16();
         let latency_ms = crate::solve::millis(latency);
-        if res.status().is_client_error() {
-            // The reason, which a 4xx's body gives the client, for whoever
-            // reads the log; every ApiError carries it.
-            match res.extensions().get::<LoggedProblem>() {
-                Some(p) => tracing::info!(
-                    status,
-                    latency_ms,
-                    problem_type = p.kind.as_str(),
-                    title = p.title,
-                    // A string, so the text format quotes it (it has spaces).
-                    detail = p.detail.as_str(),
-                    "response"
-                ),
-                None => tracing::info!(status, latency_ms, "response"),
-            }
-        } else {
+        if !res.status().is_client_error() && !res.status().is_server_error() {
             tracing::debug!(status, latency_ms, "response");
+            return;
+        }
+        // The reason, which an error's body gives the client, for whoever
+        // reads the log; every ApiError carries it.
+        let Some(p) = res.extensions().get::<LoggedProblem>() else {
+            if res.status().is_server_error() {
+                tracing::warn!(status, latency_ms, "response");
+            } else {
+                tracing::info!(status, latency_ms, "response");
+            }
+            return;
+        };
+        // A string, so the text format quotes it (it has spaces).
+        let (problem_type, title, detail) = (p.kind.as_str(), p.title, p.detail.as_str());
+        if p.overloaded {
+            // Back-pressure working, counted in
+            // solve_rejections_total{reason="queue_full"}; a line each
+            // would flood the log exactly when the service is busiest.
+            tracing::debug!(status, latency_ms, problem_type, title, detail, "response");
+        } else if res.status().is_server_error() {
+            tracing::warn!(status, latency_ms, problem_type, title, detail, "response");
+        } else {
+            tracing::info!(status, latency_ms, problem_type, title, detail, "response");
         }
     }
 }
@@ -510,7 +520,10 @@ async fn solve(
                 ::metrics::histogram!("solve_duration_seconds").record(r.solve_time_ms / 1e3);
                 ::metrics::histogram!("solve_iterations").record(r.iterations as f64);
                 tracing::info!(
-                    status = r.status.as_str(),
+                    // Not `status`: the access log's is the HTTP status, a
+                    // number, and one field of two types breaks typed log
+                    // stores.
+                    solve_status = r.status.as_str(),
                     iterations = r.iterations,
                     cost = r.cost,
                     solve_ms = r.solve_time_ms,
