@@ -906,8 +906,17 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_queue_wait_seconds_bucket",
         "solve_duration_seconds_bucket",
         "solve_iterations_bucket",
+        concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
     ] {
         assert!(text.contains(needle), "missing {needle} in\n{text}");
+    }
+    // Every family says what it counts (Prometheus shows it in queries).
+    for family in text.lines().filter_map(|l| l.strip_prefix("# TYPE ")) {
+        let name = family.split(' ').next().unwrap();
+        assert!(
+            text.contains(&format!("# HELP {name} ")),
+            "no HELP for {name} in\n{text}"
+        );
     }
 }
 

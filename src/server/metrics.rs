@@ -16,7 +16,11 @@
 //!   `shutting_down`, `internal` (a solver panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
-//! * `solve_iterations`, histogram.
+//! * `solve_iterations`, histogram;
+//! * `build_info{version}`, gauge, always 1.
+//!
+//! Each has a `# HELP` line. A labelled counter appears from its first
+//! increment (`rate()` and `absent()` alerts see no series before it).
 
 use std::sync::OnceLock;
 
@@ -49,8 +53,40 @@ pub fn handle() -> &'static PrometheusHandle {
         // Fails only if another recorder is installed; then ours stays empty,
         // which /metrics makes visible rather than hiding.
         let _ = metrics::set_global_recorder(recorder);
+        describe();
         handle
     })
+}
+
+/// The `# HELP` lines, with units where there are any.
+fn describe() {
+    use metrics::{Unit, describe_counter, describe_gauge, describe_histogram};
+    describe_counter!(
+        "http_requests_total",
+        "Answers sent, by matched route (\"unmatched\" for none) and HTTP status"
+    );
+    describe_counter!(
+        "solves_total",
+        "Solves ended, by solve status; one withdrawn from the queue because its client left counts as cancelled"
+    );
+    describe_counter!(
+        "solve_rejections_total",
+        "POST /solve requests answered with an error, by reason"
+    );
+    describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
+    describe_histogram!(
+        "solve_queue_wait_seconds",
+        Unit::Seconds,
+        "Time an admitted solve waited for a worker"
+    );
+    describe_histogram!(
+        "solve_duration_seconds",
+        Unit::Seconds,
+        "Time spent solving, without the queue wait, parsing or encoding the answer"
+    );
+    describe_histogram!("solve_iterations", "Iterations per solve");
+    describe_gauge!("build_info", "Always 1; the version is a label");
+    metrics::gauge!("build_info", "version" => env!("CARGO_PKG_VERSION")).set(1.0);
 }
 
 /// Middleware counting requests by matched route and status.
