@@ -37,7 +37,7 @@ import requests
 
 from ._version import __version__
 from .errors import OverloadedError, UnexpectedResponseError, error_from_response
-from .models import Problem, SolveResult, _non_finite_pointer, to_json_value
+from .models import Problem, SolveResult, _non_finite, to_json_value
 
 __all__ = ["Client", "ProblemLike", "TimeoutSpec"]
 
@@ -49,14 +49,6 @@ ProblemLike = Union[Problem, Mapping[str, Any], None]
 TimeoutSpec = Union[float, Tuple[float, float]]
 
 _JSON = "application/json"
-
-
-def _at(document: Any, pointer: str) -> Any:
-    """The value at a JSON pointer that :func:`_non_finite_pointer` returned."""
-    for token in pointer.split("/")[1:]:
-        key = token.replace("~1", "/").replace("~0", "~")
-        document = document[int(key)] if isinstance(document, list) else document[key]
-    return document
 
 
 class Client:
@@ -211,11 +203,12 @@ class Client:
         except ValueError:
             # Only now look for where: the walk formats a pointer per number,
             # which costs more than the encoding itself on long horizons.
-            where = _non_finite_pointer(document)
-            if where is None:
+            found = _non_finite(document)
+            if found is None:
                 raise
+            where, value = found
             raise ValueError(
-                f"{where or '(the document)'}: {_at(document, where)!r} cannot be sent: JSON has no "
+                f"{where or '(the document)'}: {value!r} cannot be sent: JSON has no "
                 "NaN or infinity (the service takes finite numbers only)"
             ) from None
         headers = {"Content-Type": _JSON}

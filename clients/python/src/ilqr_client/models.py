@@ -119,23 +119,23 @@ def _spec_to_dict(spec: Any) -> Dict[str, Any]:
     return out
 
 
-def _non_finite_pointer(value: Any, pointer: str = "") -> Optional[str]:
-    """The JSON pointer of the first NaN or infinity in a plain JSON value, if any.
+def _non_finite(value: Any, pointer: str = "") -> Optional[Tuple[str, float]]:
+    """The JSON pointer and value of the first NaN or infinity in a plain JSON value, if any.
 
     JSON has no such numbers, so the client refuses to send them; this says
     where, in a 10000-row ``initial_controls`` as in a weight.
     """
     if isinstance(value, float):
-        return None if math.isfinite(value) else pointer
+        return None if math.isfinite(value) else (pointer, value)
     if isinstance(value, Mapping):
         for key, item in value.items():
             escaped = str(key).replace("~", "~0").replace("/", "~1")
-            found = _non_finite_pointer(item, f"{pointer}/{escaped}")
+            found = _non_finite(item, f"{pointer}/{escaped}")
             if found is not None:
                 return found
     elif isinstance(value, list):
         for i, item in enumerate(value):
-            found = _non_finite_pointer(item, f"{pointer}/{i}")
+            found = _non_finite(item, f"{pointer}/{i}")
             if found is not None:
                 return found
     return None
