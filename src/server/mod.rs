@@ -99,11 +99,8 @@ fn whole_number(value: &str, min: u64, max: u64, expected: &str) -> Result<u64, 
 /// `--workers`, `--runtime-threads`: 1 to [`MAX_THREADS`].
 fn parse_threads(value: &str) -> Result<std::num::NonZeroUsize, String> {
     let expected = format!("1 to {MAX_THREADS} threads");
-    let n = whole_number(value, 1, MAX_THREADS as u64, &expected)?;
-    usize::try_from(n)
-        .ok()
-        .and_then(std::num::NonZeroUsize::new)
-        .ok_or_else(|| format!("expected {expected}, got {value:?}"))
+    let n = whole_usize(value, 1, MAX_THREADS, &expected)?;
+    std::num::NonZeroUsize::new(n).ok_or_else(|| format!("expected {expected}, got {value:?}"))
 }
 
 /// A `usize` flag from `min` to `max`.
