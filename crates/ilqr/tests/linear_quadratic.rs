@@ -36,8 +36,11 @@
 //! `mu_init = 100` (eight iterations).
 #![allow(non_snake_case)]
 
+mod common;
+
 use std::sync::atomic::AtomicBool;
 
+use common::Lcg;
 use ilqr::{
     ControlEffort, DiscreteDynamics, Objective, Options, Problem, Solver, StateTracking, Status,
     Summary, TerminalTracking,
@@ -267,26 +270,6 @@ fn cart_pole() -> Lq<4, 1> {
         q: SVector::from([1.0, 0.1, 10.0, 0.1]),
         r: SVector::from([0.01]),
         qf: SVector::from([100.0, 10.0, 100.0, 10.0]),
-    }
-}
-
-/// A small deterministic generator, so that a failure names a seed one
-/// can rerun.
-struct Lcg(u64);
-
-impl Lcg {
-    fn unit(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-    fn vector<const N: usize>(&mut self, lo: f64, hi: f64) -> SVector<f64, N> {
-        SVector::from_fn(|_, _| self.range(lo, hi))
     }
 }
 

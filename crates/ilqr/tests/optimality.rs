@@ -26,7 +26,7 @@ mod common;
 
 use std::sync::atomic::AtomicBool;
 
-use common::{MODEL, Seed, hover, seed_problem};
+use common::{Lcg, MODEL, Seed, hover, seed_problem};
 use ilqr::{
     ControlEffort, Cost, DiscreteDynamics, Euler, ExpObstacle, Objective, Options, Problem, Solver,
     StageExpansion, StateTracking, Status, TerminalExpansion, TerminalTracking,
@@ -178,23 +178,6 @@ fn examine(p: &Seed, us: &[Vector2<f64>]) -> Local {
 /// 18 and 20, converged after 151 and 157 iterations). With the tolerance
 /// at 1e-8 instead, converged solves left up to 5.3e-7.
 const STATIONARY: f64 = 1e-7;
-
-/// A small deterministic generator (the problems must be the same on every
-/// run: a failure names a problem one can rerun).
-struct Lcg(u64);
-
-impl Lcg {
-    fn unit(&mut self) -> f64 {
-        self.0 = self
-            .0
-            .wrapping_mul(6_364_136_223_846_793_005)
-            .wrapping_add(1_442_695_040_888_963_407);
-        (self.0 >> 11) as f64 / (1u64 << 53) as f64
-    }
-    fn range(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * self.unit()
-    }
-}
 
 /// A problem like the seed with everything drawn: horizon 50, 100 or 150,
 /// dt 0.02–0.1 s, start and goal at rest anywhere in a 10 m square, weights

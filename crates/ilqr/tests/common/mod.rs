@@ -1,5 +1,5 @@
 //! The seed scenario of the paper, built directly on the core crate, shared
-//! by the integration tests and benchmarks.
+//! by the integration tests and benchmarks, and the tests' random generator.
 #![allow(dead_code)]
 
 use ilqr::{
@@ -57,4 +57,24 @@ pub fn seed_problem(n: usize, dt: f64) -> Seed {
 /// Hover thrust on both rotors for `n` steps.
 pub fn hover(n: usize) -> Vec<Vector2<f64>> {
     vec![Vector2::repeat(MODEL.hover_thrust()); n]
+}
+
+/// A small deterministic generator, so that the random problems are the
+/// same on every run and a failure names a seed one can rerun.
+pub struct Lcg(pub u64);
+
+impl Lcg {
+    pub fn unit(&mut self) -> f64 {
+        self.0 = self
+            .0
+            .wrapping_mul(6_364_136_223_846_793_005)
+            .wrapping_add(1_442_695_040_888_963_407);
+        (self.0 >> 11) as f64 / (1u64 << 53) as f64
+    }
+    pub fn range(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * self.unit()
+    }
+    pub fn vector<const N: usize>(&mut self, lo: f64, hi: f64) -> SVector<f64, N> {
+        SVector::from_fn(|_, _| self.range(lo, hi))
+    }
 }
