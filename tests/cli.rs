@@ -146,6 +146,15 @@ fn settings_out_of_range_are_rejected_before_serving() {
             &["--max-time-limit-ms", "5000"],
             "(10000) must not exceed --max-time-limit-ms / ILQR_MAX_TIME_LIMIT_MS (5000)",
         ),
+        (
+            &["--max-inflight-body-bytes", "1000000"],
+            "--max-inflight-body-bytes / ILQR_MAX_INFLIGHT_BODY_BYTES (1000000) must be at \
+             least --max-body-bytes / ILQR_MAX_BODY_BYTES (4194304)",
+        ),
+        (
+            &["--max-inflight-body-bytes", "100"],
+            "expected at least 4096 (the default problem takes 0.5 KB), got 100",
+        ),
     ] {
         let (code, stderr) = serve_with(args);
         assert_eq!(code, Some(2), "{args:?}: {stderr}");

@@ -705,6 +705,77 @@ async fn a_declared_oversized_body_is_refused_at_once() {
     assert_eq!(&head, b"HTTP/1.1 413");
 }
 
+/// The bodies being received share a memory budget
+/// (`--max-inflight-body-bytes`). Past it a new body is refused at once with
+/// 503 `overloaded` and `Retry-After`, whether it declares its length or
+/// comes in chunks, and a body's share comes back when its read ends.
+#[tokio::test]
+async fn bodies_being_received_share_a_memory_budget() {
+    use tokio::io::AsyncWriteExt;
+    let s = Server::start(Config {
+        max_body_bytes: 4096,
+        max_inflight_body_bytes: Some(8192),
+        ..Config::default()
+    })
+    .await;
+    // Two clients declare the largest body, send its start and stall: they
+    // hold the whole budget.
+    let mut stalled = Vec::new();
+    for _ in 0..2 {
+        let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        conn.write_all(
+            b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+              Content-Length: 4096\r\n\r\n{\"dt\":",
+        )
+        .await
+        .unwrap();
+        stalled.push(conn);
+    }
+    tokio::time::sleep(Duration::from_millis(300)).await;
+
+    let head = "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                Connection: close\r\n";
+    for (framing, body) in [
+        ("Content-Length: 2", "{}"),
+        ("Transfer-Encoding: chunked", "2\r\n{}\r\n0\r\n\r\n"),
+    ] {
+        let t = Instant::now();
+        let answer =
+            raw_exchange(s.addr, format!("{head}{framing}\r\n\r\n{body}").as_bytes()).await;
+        assert!(t.elapsed() < Duration::from_secs(1), "{:?}", t.elapsed());
+        assert!(answer.starts_with("HTTP/1.1 503"), "{framing}: {answer}");
+        assert!(answer.contains("retry-after: 1\r\n"), "{framing}: {answer}");
+        assert!(answer.contains("urn:ilqr-service:overloaded"), "{answer}");
+        assert!(
+            answer.contains("too many request bodies are being received at once"),
+            "{answer}"
+        );
+    }
+    assert_eq!(
+        counter(&s, "solve_rejections_total{reason=\"body_budget\"}").await,
+        2.0
+    );
+
+    // One client leaves: its 4096 bytes come back, and a problem fits.
+    drop(stalled.pop());
+    let t = Instant::now();
+    loop {
+        let status = s
+            .post(&json!({"solver": {"max_iterations": 1}}))
+            .await
+            .status();
+        if status == 200 {
+            break;
+        }
+        assert_eq!(status, 503);
+        assert!(
+            t.elapsed() < Duration::from_secs(3),
+            "the budget never came back"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+}
+
 #[tokio::test]
 async fn a_full_queue_answers_503_with_retry_after_at_once() {
     let s = Server::start(small(1, 1)).await;

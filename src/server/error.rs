@@ -50,6 +50,15 @@ pub struct Problem {
     pub retry_after: Option<u64>,
 }
 
+/// What a 503 `overloaded` ran out of.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Overload {
+    /// Every worker is busy and the queue is full.
+    Queue,
+    /// The bodies being read hold `--max-inflight-body-bytes`.
+    Bodies,
+}
+
 /// Every way a request can fail.
 #[derive(Debug, Clone, PartialEq)]
 pub enum ApiError {
@@ -67,8 +76,9 @@ pub enum ApiError {
     /// The body could not be read: the connection broke, or its framing
     /// (chunked encoding) is invalid (400).
     UnreadableBody(String),
-    /// The queue is full (503 with `Retry-After`).
-    Overloaded { retry_after: u64 },
+    /// The solver queue is full, or the request bodies being received take
+    /// all of their memory budget (503 with `Retry-After`).
+    Overloaded { retry_after: u64, cause: Overload },
     /// The service is shutting down (503).
     ShuttingDown,
     /// A bug: a solver panic or a lost worker (500).
@@ -113,7 +123,7 @@ impl ApiError {
             Self::Overloaded { .. } => (
                 StatusCode::SERVICE_UNAVAILABLE,
                 "overloaded",
-                "Solver queue full",
+                "Service overloaded",
             ),
             Self::ShuttingDown => (
                 StatusCode::SERVICE_UNAVAILABLE,
@@ -143,7 +153,14 @@ impl ApiError {
             Self::PayloadTooLarge(_) => "too_large",
             Self::RequestTimeout(_) => "body_timeout",
             Self::UnreadableBody(_) => "unreadable_body",
-            Self::Overloaded { .. } => "queue_full",
+            Self::Overloaded {
+                cause: Overload::Queue,
+                ..
+            } => "queue_full",
+            Self::Overloaded {
+                cause: Overload::Bodies,
+                ..
+            } => "body_budget",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
             Self::NotFound(_) => "not_found",
@@ -200,8 +217,16 @@ impl ApiError {
             Self::UnreadableBody(msg) => {
                 (format!("the body could not be read: {msg}"), vec![], None)
             }
-            Self::Overloaded { retry_after } => (
-                format!("every worker is busy and the queue is full; retry in {retry_after} s"),
+            Self::Overloaded { retry_after, cause } => (
+                match cause {
+                    Overload::Queue => format!(
+                        "every worker is busy and the queue is full; retry in {retry_after} s"
+                    ),
+                    Overload::Bodies => format!(
+                        "too many request bodies are being received at once; \
+                         retry in {retry_after} s"
+                    ),
+                },
                 vec![],
                 Some(*retry_after),
             ),
@@ -267,7 +292,7 @@ pub(crate) struct LoggedProblem {
     /// what was wrong and may quote a short value; the body itself is never
     /// logged.
     pub detail: String,
-    /// A 503 for a full queue: logged at `debug` only (see `AccessLog`).
+    /// A 503 for overload: logged at `debug` only (see `AccessLog`).
     pub overloaded: bool,
 }
 

@@ -13,7 +13,9 @@
 //! * `solve_rejections_total{reason}`, counter, every `/solve` request that
 //!   got an error: `malformed_json`, `unsupported_media_type`, `too_large`,
 //!   `body_timeout`, `unreadable_body`, `invalid`, `queue_full`,
-//!   `shutting_down`, `internal` (a solver panic);
+//!   `body_budget` (the bodies being read hold
+//!   `--max-inflight-body-bytes`), `shutting_down`, `internal` (a solver
+//!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram;

@@ -2,9 +2,11 @@
 //!
 //! # Mechanisms
 //!
-//! * **Admission.** `POST /solve` validates the problem on the async runtime
-//!   (cheap), then hands it to the [`pool::Pool`]. A full queue answers 503
-//!   with `Retry-After` at once; nothing waits for a slot.
+//! * **Admission.** `POST /solve` reads its body within a memory budget
+//!   shared by all bodies being read (`body`), validates the problem on the
+//!   async runtime (cheap), then hands it to the [`pool::Pool`]. An
+//!   exhausted budget or a full queue answers 503 with `Retry-After` at
+//!   once; nothing waits for bytes or a slot.
 //! * **Time budget.** Every solve gets `solver.time_limit_ms` or the
 //!   configured default; the solver checks it every iteration and every 128
 //!   knots inside its passes, and returns the best trajectory so far with
@@ -24,6 +26,7 @@
 //!   keeps `/healthz` answering in about a millisecond behind megabyte
 //!   answers, and takes few time slices from the solvers.
 
+mod body;
 mod error;
 mod metrics;
 pub mod pool;
@@ -40,7 +43,7 @@ use std::time::Duration;
 use tokio::net::TcpListener;
 use tokio::sync::Notify;
 
-pub use error::{ApiError, PROBLEM_JSON, Problem};
+pub use error::{ApiError, Overload, PROBLEM_JSON, Problem};
 pub use routes::{ApiDoc, app, openapi, openapi_json};
 
 use crate::problem::{DEFAULT_HORIZON, DEFAULT_MAX_HORIZON, Limits};
@@ -255,6 +258,16 @@ pub struct Config {
     #[arg(long, env = "ILQR_MAX_BODY_BYTES", default_value_t = 4 * 1024 * 1024,
           value_parser = parse_max_body_bytes, allow_negative_numbers = true)]
     pub max_body_bytes: usize,
+    /// Bytes that the request bodies being received may hold together, over
+    /// all connections: each is held whole until it is parsed, and
+    /// connections are not limited (100 clients each sending a 4 MB body
+    /// held 395 MiB). A body that would take the total past this waits for
+    /// nothing: it gets 503 `overloaded` with `Retry-After`, as a full queue
+    /// does. At least `--max-body-bytes` (default: 16 times it, 64 MiB at
+    /// its default).
+    #[arg(long, env = "ILQR_MAX_INFLIGHT_BODY_BYTES",
+          value_parser = parse_max_body_bytes, allow_negative_numbers = true)]
+    pub max_inflight_body_bytes: Option<usize>,
     /// Seconds in-flight solves get to finish on shutdown before they are
     /// cancelled.
     #[arg(long, env = "ILQR_SHUTDOWN_GRACE_SECS", default_value_t = 10,
@@ -383,6 +396,21 @@ impl Config {
             self.read_timeout_secs,
             parse_read_timeout,
         )?;
+        if let Some(n) = self.max_inflight_body_bytes {
+            recheck(
+                "--max-inflight-body-bytes / ILQR_MAX_INFLIGHT_BODY_BYTES",
+                n,
+                parse_max_body_bytes,
+            )?;
+            if n < self.max_body_bytes {
+                return Err(format!(
+                    "--max-inflight-body-bytes / ILQR_MAX_INFLIGHT_BODY_BYTES ({n}) must be at \
+                     least --max-body-bytes / ILQR_MAX_BODY_BYTES ({}), or no body of the \
+                     largest size could ever be received",
+                    self.max_body_bytes
+                ));
+            }
+        }
         if self.default_time_limit_ms > self.max_time_limit_ms {
             return Err(format!(
                 "--default-time-limit-ms / ILQR_DEFAULT_TIME_LIMIT_MS ({}) must not exceed \
@@ -391,6 +419,12 @@ impl Config {
             ));
         }
         Ok(())
+    }
+
+    /// `--max-inflight-body-bytes`, or its default.
+    pub fn inflight_body_bytes(&self) -> usize {
+        self.max_inflight_body_bytes
+            .unwrap_or_else(|| self.max_body_bytes.saturating_mul(16))
     }
 
     fn workers(&self) -> usize {
@@ -411,6 +445,9 @@ fn cores() -> usize {
 pub struct AppState {
     config: Config,
     pool: Pool,
+    /// Bytes of the request bodies being read, against
+    /// `--max-inflight-body-bytes`.
+    bodies: body::BodyBudget,
     draining: AtomicBool,
     /// Cancellation flags of admitted solves, by admission number.
     inflight: Mutex<HashMap<u64, Arc<AtomicBool>>>,
@@ -428,6 +465,7 @@ impl AppState {
         metrics::handle(); // install the recorder before anything records
         let pool = Pool::new(config.workers(), config.queue_capacity)?;
         Ok(Arc::new(Self {
+            bodies: body::BodyBudget::new(config.inflight_body_bytes()),
             config,
             pool,
             draining: AtomicBool::new(false),
@@ -725,6 +763,7 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
             max_time_limit_ms = config.max_time_limit_ms,
             max_horizon = config.max_horizon,
             max_body_bytes = config.max_body_bytes,
+            max_inflight_body_bytes = config.inflight_body_bytes(),
             shutdown_grace_secs = config.shutdown_grace_secs,
             read_timeout_secs = config.read_timeout_secs,
             gzip_level = config.gzip_level,

@@ -4,7 +4,6 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Json;
-use axum::body::Bytes;
 use axum::extract::{DefaultBodyLimit, FromRequest, Request, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
@@ -19,7 +18,8 @@ use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
 use utoipa_swagger_ui::SwaggerUi;
 
-use super::error::{ApiError, LoggedProblem, Problem};
+use super::body::{BodyRules, read_with};
+use super::error::{ApiError, LoggedProblem, Overload, Problem};
 use super::pool::Ticket;
 use super::{AppState, metrics};
 use crate::problem::{ParseError, ProblemSpec, clip, parse};
@@ -287,7 +287,7 @@ impl<B> OnResponse<B> for AccessLog {
         let (problem_type, title, detail) = (p.kind.as_str(), p.title, p.detail.as_str());
         if p.overloaded {
             // Back-pressure working, counted in
-            // solve_rejections_total{reason="queue_full"}; a line each
+            // solve_rejections_total{reason="queue_full" or "body_budget"}; a line each
             // would flood the log exactly when the service is busiest.
             tracing::debug!(status, latency_ms, problem_type, title, detail, "response");
         } else if res.status().is_server_error() {
@@ -314,37 +314,20 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
     let headers = req.headers();
     unsupported_media_type(headers)
         .map_or(Ok(()), |detail| Err(ApiError::UnsupportedMediaType(detail)))?;
-    let limit = state.config.max_body_bytes;
-    // A declared length over the limit is refused before reading a byte (and
-    // before hyper answers `Expect: 100-continue`).
-    let declared = headers
-        .get(header::CONTENT_LENGTH)
-        .and_then(|v| v.to_str().ok())
-        .and_then(|v| v.parse::<u64>().ok());
-    if declared.is_some_and(|n| n > limit as u64) {
-        return Err(ApiError::PayloadTooLarge(limit));
-    }
-    // Bounded in time as well as size: a client that stalls mid-body would
-    // otherwise hold its connection (and a shutdown) indefinitely.
-    let secs = state.config.read_timeout_secs;
-    let read = Bytes::from_request(req, state);
-    let bytes = tokio::time::timeout(Duration::from_secs(secs), read)
-        .await
-        .map_err(|_| ApiError::RequestTimeout(secs))?
-        .map_err(|rej| {
-            if rej.status() == StatusCode::PAYLOAD_TOO_LARGE {
-                ApiError::PayloadTooLarge(limit)
-            } else {
-                ApiError::UnreadableBody(rej.body_text())
-            }
-        })?;
-    match parse(&bytes) {
+    let rules = BodyRules {
+        limit: state.config.max_body_bytes,
+        timeout: Duration::from_secs(state.config.read_timeout_secs),
+        budget: &state.bodies,
+        retry_after: state.config.retry_after_secs,
+    };
+    read_with(req, &rules, |bytes| match parse(bytes) {
         Ok(spec) => Ok(spec),
         Err(ParseError::Syntax(msg)) => Err(ApiError::MalformedJson(msg)),
         Err(ParseError::Shape(shapes)) => Err(ApiError::Validation(
             shapes.with_range_errors(&state.config.limits()),
         )),
-    }
+    })
+    .await
 }
 
 /// Why the body cannot be read as a problem, going by its headers (the
@@ -479,7 +462,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
-        (status = 503, description = "Queue full (with Retry-After) or shutting down", body = Problem, content_type = "application/problem+json",
+        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`)", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
     )
 )]
@@ -552,6 +535,7 @@ async fn solve(
         .map_err(|_| {
             reject(ApiError::Overloaded {
                 retry_after: st.config.retry_after_secs,
+                cause: Overload::Queue,
             })
         })?;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);

@@ -261,7 +261,7 @@ def test_unknown_4xx_is_a_plain_api_error() -> None:
 def test_problem_documents_map_by_type() -> None:
     overloaded = error_from_response(fake_response(
         503,
-        '{"type":"urn:ilqr-service:overloaded","title":"Solver queue full","status":503,'
+        '{"type":"urn:ilqr-service:overloaded","title":"Service overloaded","status":503,'
         '"detail":"retry in 2 s","retry_after":2}',
     ))
     assert isinstance(overloaded, OverloadedError) and overloaded.retry_after == 2.0

@@ -198,7 +198,9 @@ class MethodNotAllowedError(ApiError):
 
 
 class OverloadedError(ApiError):
-    """503 ``overloaded``: every worker is busy and the queue is full.
+    """503 ``overloaded``: every worker is busy and the queue is full, or
+    the service is receiving as many request bodies as its memory budget
+    for them allows (``detail`` says which).
 
     Transient. :attr:`retry_after` holds the seconds the service asked to
     wait (from the ``Retry-After`` header, else the body's ``retry_after``).

@@ -1,0 +1,255 @@
+//! Reading request bodies: each within `--max-body-bytes` and the read
+//! timeout, and all of them together within `--max-inflight-body-bytes`.
+//!
+//! A body is held whole until it is parsed (the parser needs all of it to
+//! point at every bad value), and the number of connections is not limited.
+//! Without a shared cap, memory grew with the number of clients uploading at
+//! once: 100 connections each holding a 4 MB body held 395 MiB of RSS, so a
+//! few hundred would exhaust a container. [`BodyBudget`] counts the bytes of
+//! every body being read or parsed, and a body that would take the total
+//! past the cap is answered 503 `overloaded` with `Retry-After`, as a full
+//! solver queue is: the same back-pressure, for the same kind of client.
+//!
+//! A body with a `Content-Length` reserves its whole length before a byte
+//! is read (and before `Expect: 100-continue` is answered), so a refused
+//! client has not sent it. A chunked body reserves the buffer it grows into,
+//! chunk by chunk. What is reserved is returned when the body is dropped,
+//! after parsing; the parsed problem is smaller than its text and is bounded
+//! by the solver queue instead.
+
+use std::sync::atomic::{AtomicUsize, Ordering};
+use std::time::Duration;
+
+use axum::extract::Request;
+use axum::http::header;
+use http_body_util::BodyExt;
+
+use super::error::{ApiError, Overload};
+
+/// Bytes that all bodies being read may hold together.
+#[derive(Debug)]
+pub(crate) struct BodyBudget {
+    limit: usize,
+    used: AtomicUsize,
+}
+
+impl BodyBudget {
+    pub(crate) fn new(limit: usize) -> Self {
+        Self {
+            limit,
+            used: AtomicUsize::new(0),
+        }
+    }
+
+    /// Bytes held now, over all bodies.
+    #[cfg(test)]
+    fn used(&self) -> usize {
+        self.used.load(Ordering::Relaxed)
+    }
+
+    /// Take `bytes` more from the budget, or nothing if they do not fit.
+    fn take(&self, bytes: usize) -> bool {
+        self.used
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
+                used.checked_add(bytes).filter(|&total| total <= self.limit)
+            })
+            .is_ok()
+    }
+}
+
+/// Bytes one body holds in a [`BodyBudget`], returned when it is dropped.
+struct Held<'a> {
+    budget: &'a BodyBudget,
+    bytes: usize,
+}
+
+impl Held<'_> {
+    /// Hold `bytes` in all, taking the difference from the budget.
+    fn grow_to(&mut self, bytes: usize) -> bool {
+        if bytes <= self.bytes {
+            return true;
+        }
+        let ok = self.budget.take(bytes - self.bytes);
+        if ok {
+            self.bytes = bytes;
+        }
+        ok
+    }
+}
+
+impl Drop for Held<'_> {
+    fn drop(&mut self) {
+        self.budget.used.fetch_sub(self.bytes, Ordering::AcqRel);
+    }
+}
+
+/// How a body is read: its size limit, read timeout and shared budget.
+pub(crate) struct BodyRules<'a> {
+    pub limit: usize,
+    pub timeout: Duration,
+    pub budget: &'a BodyBudget,
+    /// `Retry-After` of a refusal for lack of budget, in s.
+    pub retry_after: u64,
+}
+
+/// Read `req`'s body whole and hand it to `parse` while it is still
+/// counted in the budget.
+pub(crate) async fn read_with<T>(
+    req: Request,
+    rules: &BodyRules<'_>,
+    parse: impl FnOnce(&[u8]) -> Result<T, ApiError>,
+) -> Result<T, ApiError> {
+    let full = || ApiError::Overloaded {
+        retry_after: rules.retry_after,
+        cause: Overload::Bodies,
+    };
+    // A declared length over the limit is refused before reading a byte
+    // (and before hyper answers `Expect: 100-continue`).
+    let declared = req
+        .headers()
+        .get(header::CONTENT_LENGTH)
+        .and_then(|v| v.to_str().ok())
+        .and_then(|v| v.parse::<u64>().ok());
+    if declared.is_some_and(|n| n > rules.limit as u64) {
+        return Err(ApiError::PayloadTooLarge(rules.limit));
+    }
+    let mut held = Held {
+        budget: rules.budget,
+        bytes: 0,
+    };
+    // At most `limit`, checked above.
+    let declared = declared.map_or(0, |n| n as usize);
+    if !held.grow_to(declared) {
+        return Err(full());
+    }
+    let mut buf = Vec::with_capacity(declared);
+    let mut body = req.into_body();
+    // Bounded in time as well as size: a client that stalls mid-body would
+    // otherwise hold its connection, its share of the budget and a
+    // shutdown indefinitely.
+    let read = async {
+        while let Some(frame) = body.frame().await {
+            let frame = frame.map_err(|e| ApiError::UnreadableBody(chain(&e)))?;
+            let Ok(data) = frame.into_data() else {
+                continue; // trailers
+            };
+            let need = buf.len() + data.len();
+            if need > rules.limit {
+                return Err(ApiError::PayloadTooLarge(rules.limit));
+            }
+            if need > buf.capacity() {
+                // Grow as Vec would (doubling), but reserve it first, so
+                // the budget counts the allocation rather than the length.
+                let cap = need.max(buf.capacity() * 2).min(rules.limit);
+                if !held.grow_to(cap) {
+                    return Err(full());
+                }
+                buf.reserve_exact(cap - buf.len());
+            }
+            buf.extend_from_slice(&data);
+        }
+        Ok(())
+    };
+    let secs = rules.timeout.as_secs();
+    tokio::time::timeout(rules.timeout, read)
+        .await
+        .map_err(|_| ApiError::RequestTimeout(secs))??;
+    parse(&buf)
+}
+
+/// `e` with its causes, as "outer: inner: …": hyper's outermost error says
+/// only "error reading a body from connection".
+fn chain(e: &dyn std::error::Error) -> String {
+    let mut out = e.to_string();
+    let mut next = e.source();
+    while let Some(cause) = next {
+        let text = cause.to_string();
+        if !out.ends_with(&text) {
+            out.push_str(": ");
+            out.push_str(&text);
+        }
+        next = cause.source();
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use axum::body::Body;
+
+    fn request(body: &'static [u8], length: Option<usize>) -> Request {
+        let mut req = Request::new(Body::from(body));
+        if let Some(n) = length {
+            req.headers_mut()
+                .insert(header::CONTENT_LENGTH, header::HeaderValue::from(n));
+        }
+        req
+    }
+
+    fn rules(budget: &BodyBudget) -> BodyRules<'_> {
+        BodyRules {
+            limit: 8,
+            timeout: Duration::from_secs(5),
+            budget,
+            retry_after: 3,
+        }
+    }
+
+    /// What a body holds is returned however its read ends, and a body
+    /// that does not fit beside the others is refused as overload.
+    #[tokio::test]
+    async fn the_budget_is_shared_and_returned() {
+        let budget = BodyBudget::new(10);
+        let rules = rules(&budget);
+
+        // The parser runs while the body is still counted.
+        let seen = read_with(request(b"12345678", Some(8)), &rules, |b| {
+            Ok((b.to_vec(), budget.used()))
+        })
+        .await;
+        assert_eq!(seen, Ok((b"12345678".to_vec(), 8)));
+        assert_eq!(budget.used(), 0);
+
+        // Another body holds 6 of the 10 bytes: a declared 8 does not fit
+        // and is refused before it is read; a declared 4 does.
+        assert!(budget.take(6));
+        let refused = read_with(request(b"12345678", Some(8)), &rules, |_| Ok(())).await;
+        assert_eq!(
+            refused,
+            Err(ApiError::Overloaded {
+                retry_after: 3,
+                cause: Overload::Bodies
+            })
+        );
+        let fits = read_with(request(b"1234", Some(4)), &rules, |b| Ok(b.len())).await;
+        assert_eq!(fits, Ok(4));
+        // Without a length, the buffer it grows into is what counts.
+        let fits = read_with(request(b"1234", None), &rules, |b| Ok(b.len())).await;
+        assert_eq!(fits, Ok(4));
+        let refused = read_with(request(b"12345", None), &rules, |b| Ok(b.len())).await;
+        assert!(
+            matches!(refused, Err(ApiError::Overloaded { .. })),
+            "{refused:?}"
+        );
+        assert_eq!(budget.used(), 6, "only the other body's bytes are held");
+
+        // Errors return what the body held too.
+        let too_large = read_with(request(b"123456789", None), &rules, |_| Ok(())).await;
+        assert_eq!(too_large, Err(ApiError::PayloadTooLarge(8)));
+        let invalid = read_with(request(b"1234", Some(4)), &rules, |_| {
+            Err::<(), _>(ApiError::MalformedJson("x".into()))
+        })
+        .await;
+        assert!(invalid.is_err());
+        assert_eq!(budget.used(), 6);
+    }
+
+    #[test]
+    fn the_budget_never_overflows() {
+        let budget = BodyBudget::new(usize::MAX);
+        assert!(budget.take(usize::MAX));
+        assert!(!budget.take(1));
+        assert_eq!(budget.used(), usize::MAX);
+    }
+}
