@@ -6,7 +6,7 @@ import math
 
 import pytest
 import requests
-from conftest import SEED_COST, ServiceProcess
+from conftest import SEED_COST, ServiceProcess, busy_problem
 from ilqr_client import (
     Client,
     Gains,
@@ -257,3 +257,34 @@ def test_one_connection_serves_every_call(service: ServiceProcess) -> None:
         (key,) = pools.keys()  # one pool: one host
         assert pools[key].num_requests == 5
         assert pools[key].num_connections == 1
+
+
+def test_a_read_timeout_below_the_time_budget_is_raised_to_cover_it(service: ServiceProcess) -> None:
+    # A 1 s read timeout and a 2.5 s budget: the client waits for the answer
+    # instead of leaving (which would also cancel the solve).
+    with Client(service.url, timeout=1.0, retries=0) as c:
+        result = c.solve(busy_problem(2500))
+    assert result.status == "time_limit"
+    assert result.solve_time_ms > 2000
+    # A timeout given for the call is kept exactly.
+    with Client(service.url, retries=0) as c:
+        with pytest.raises(requests.exceptions.ReadTimeout):
+            c.solve(busy_problem(2500), timeout=1.0)
+
+
+def test_only_a_usable_budget_raises_the_timeout() -> None:
+    from ilqr_client.client import _covering
+
+    def budget(limit: object) -> dict:
+        return {"solver": {"time_limit_ms": limit}}
+
+    assert _covering(30.0, budget(45000)) == (30.0, 50.0)
+    assert _covering(30.0, budget(1000)) == 30.0
+    assert _covering((2.0, 10.0), budget(45000)) == (2.0, 50.0)
+    assert _covering((2.0, 60.0), budget(45000)) == (2.0, 60.0)
+    assert _covering(None, budget(45000)) is None
+    # Left for the service to refuse, or not set: the timeout as it was.
+    for unusable in [True, "45000", -1, float("nan"), None]:
+        assert _covering(30.0, budget(unusable)) == 30.0, unusable
+    assert _covering(30.0, {}) == 30.0
+    assert _covering(30.0, {"solver": None}) == 30.0

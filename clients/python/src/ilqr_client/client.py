@@ -48,6 +48,33 @@ ProblemLike = Union[Problem, Mapping[str, Any], None]
 #: A requests timeout: seconds for connect and read alike, or ``(connect, read)``.
 TimeoutSpec = Union[float, Tuple[float, float]]
 
+#: Seconds a solve's read timeout allows beyond its ``solver.time_limit_ms``:
+#: the budget covers queueing and solving, not encoding the answer and
+#: moving it (about 0.1 s for the largest answer on a LAN).
+_BUDGET_MARGIN_S = 5.0
+
+
+def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Optional[TimeoutSpec]:
+    """``timeout`` with its read part raised to cover the time budget that
+    ``document`` asks for, plus :data:`_BUDGET_MARGIN_S`.
+
+    Without it, a read timeout below the budget gave up on a solve the service
+    was still entitled to run, and the service then cancelled it: the caller
+    got ``ReadTimeout`` instead of the trajectory. A budget that is not a
+    non-negative number is left to the service to refuse (422).
+    """
+    solver = document.get("solver")
+    limit_ms = solver.get("time_limit_ms") if isinstance(solver, Mapping) else None
+    if isinstance(limit_ms, bool) or not isinstance(limit_ms, (int, float)) or not limit_ms >= 0:
+        return timeout
+    need = limit_ms / 1000.0 + _BUDGET_MARGIN_S
+    if timeout is None:
+        return None  # no timeout at all already waits long enough
+    if isinstance(timeout, tuple):
+        connect, read = timeout
+        return timeout if read is None or read >= need else (connect, need)
+    return timeout if timeout >= need else (timeout, need)
+
 _JSON = "application/json"
 
 
@@ -64,9 +91,12 @@ class Client:
         base_url: The service's root URL; a path prefix (behind a proxy) is kept.
         timeout: Per-request timeout in seconds, or ``(connect, read)``. A
             solve can legitimately take as long as its time budget (the
-            service's default is 10 s, the maximum 60 s), so keep the read
-            timeout above the ``solver.time_limit_ms`` you send; ``solve``
-            accepts a per-call override.
+            service's default is 10 s, the maximum 60 s). When a problem sets
+            ``solver.time_limit_ms``, :meth:`solve` raises the read timeout
+            to that budget plus 5 s if it is shorter, so the answer is not
+            abandoned (and the solve cancelled) while the service is still
+            within the budget it was given; ``solve(timeout=...)`` overrides
+            it for one call, exactly.
         retries: Extra attempts after an overload (503 with Retry-After) or a
             connection failure; 0 disables retrying. See the module docs.
         session: A :class:`requests.Session` to use (for custom adapters,
@@ -169,7 +199,10 @@ class Client:
             problem: A :class:`Problem`, a JSON-like mapping (lists, tuples and
                 numpy arrays are all fine as values), or ``None`` for ``{}``,
                 the seed scenario. Omitted fields take the service's defaults.
-            timeout: Overrides the client's timeout for this call.
+            timeout: Overrides the client's timeout for this call, exactly.
+                Without it the client's timeout is used, its read part raised
+                to the problem's ``solver.time_limit_ms`` plus 5 s when that
+                is longer (the budget includes time spent queued).
             request_id: Sent as ``x-request-id``; the service logs it and
                 echoes it (also on errors), which helps correlate logs. 1 to
                 128 visible ASCII characters (no spaces): the service would
@@ -214,6 +247,8 @@ class Client:
         headers = {"Content-Type": _JSON}
         if request_id is not None:
             headers["x-request-id"] = request_id
+        if timeout is None:
+            timeout = _covering(self.timeout, document)
         response = self._request("POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout)
         data = self._json(response)
         try:
