@@ -705,6 +705,29 @@ fn text_logs_to_a_pipe_have_no_colour_escapes() {
     assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
 }
 
+/// The running service folds histogram samples into buckets on a thread of
+/// its own: without it they were kept until `/metrics` was scraped, and an
+/// unscraped service grew by 2.9 MB per 10 s at saturation.
+#[cfg(target_os = "linux")]
+#[test]
+fn metrics_upkeep_runs_without_a_scrape() {
+    let (server, _) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["serve", "--bind", bind, "--workers", "1"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    let tasks = format!("/proc/{}/task", server.0.id());
+    let names: Vec<String> = std::fs::read_dir(&tasks)
+        .unwrap()
+        .filter_map(|t| std::fs::read_to_string(t.ok()?.path().join("comm")).ok())
+        .map(|n| n.trim().to_owned())
+        .collect();
+    assert!(
+        names.iter().any(|n| n == "metrics-upkeep"),
+        "threads: {names:?}"
+    );
+}
+
 /// Stop a server started with piped stdout; what it wrote there.
 fn stop_and_read_stdout(server: &mut Child) -> String {
     use std::io::Read;

@@ -23,6 +23,8 @@
 //!
 //! Each has a `# HELP` line. A labelled counter appears from its first
 //! increment (`rate()` and `absent()` alerts see no series before it).
+//! Histogram samples are folded into buckets every second by a thread of
+//! the recorder's own, scraped or not (see [`start_upkeep`]).
 
 use std::sync::OnceLock;
 
@@ -56,8 +58,38 @@ pub fn handle() -> &'static PrometheusHandle {
         // which /metrics makes visible rather than hiding.
         let _ = metrics::set_global_recorder(recorder);
         describe();
+        start_upkeep(handle.clone());
         handle
     })
+}
+
+/// How often histogram samples are folded into their buckets.
+const UPKEEP_EVERY: std::time::Duration = std::time::Duration::from_secs(1);
+
+/// Fold histogram samples into their buckets every [`UPKEEP_EVERY`], on a
+/// thread of its own (`metrics-upkeep`) for the life of the process.
+///
+/// A histogram keeps every sample it is given until the exporter's upkeep
+/// folds them into buckets, and `build_recorder` (unlike the exporter's
+/// `build`, which needs the runtime at construction) spawns no upkeep:
+/// samples were folded only when `/metrics` was scraped. Unscraped, as
+/// under plain curl or a bare container, memory grew without bound, by
+/// 2.9 MB per 10 s at 5000 solves/s (a 512Mi pod in about half an hour).
+fn start_upkeep(handle: PrometheusHandle) {
+    let spawned = std::thread::Builder::new()
+        .name("metrics-upkeep".into())
+        .spawn(move || {
+            loop {
+                std::thread::sleep(UPKEEP_EVERY);
+                handle.run_upkeep();
+            }
+        });
+    if let Err(e) = spawned {
+        tracing::warn!(
+            error = %e,
+            "no metrics upkeep thread: histogram samples are kept until /metrics is scraped"
+        );
+    }
 }
 
 /// The `# HELP` lines, with units where there are any.
