@@ -23,6 +23,9 @@
 #       cores); wrk's own tally of statuses >= 400 gives the 200s.
 #    Then the same FULL_ROUNDS times (default 2) for the `full` body (gains
 #    and trace in the answer).
+#    The server's RSS after the first lean round and after the last full
+#    one says whether memory grows with solves served (/metrics is never
+#    scraped here).
 #    Ratios: HTTP/in-process throughput (wall clock: includes wrk's own CPU
 #    on the same 2 cores) and in-process/server CPU per request (not
 #    affected by wrk or by other processes taking cores away).
@@ -133,11 +136,14 @@ start_server 64
 for round in $(seq "$ROUNDS"); do
     inproc lean "$DURATION"
     http lean "$DURATION" "$round"
+    # Warm after the first round: pools and buffers have their size.
+    if [[ "$round" == 1 ]]; then rss_warm="$(ps -o rss= -p "$SERVER_PID" | tr -d ' ')"; fi
 done
 for round in $(seq "$FULL_ROUNDS"); do
     inproc full "$FULL_DURATION"
     http full "$FULL_DURATION" "$round"
 done
+rss_saturated="$(ps -o rss= -p "$SERVER_PID" | tr -d ' ')"
 stop_server
 
 # 2. Overload.
@@ -161,11 +167,13 @@ rss_after="$(ps -o rss= -p "$SERVER_PID" | tr -d ' ')"
 stop_server
 
 # Report.
-python3 - "$tmp" "$ROUNDS" "$FULL_ROUNDS" "$rss_idle" "$rss_after" "$CONNS" "$OVERLOAD_CONNS" <<'EOF'
+python3 - "$tmp" "$ROUNDS" "$FULL_ROUNDS" "$rss_idle" "$rss_after" "$CONNS" "$OVERLOAD_CONNS" \
+    "$rss_warm" "$rss_saturated" <<'EOF'
 import re, sys
 
 tmp, rounds, full_rounds = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
 rss_idle, rss_after, conns, overload_conns = sys.argv[4:8]
+rss_warm, rss_saturated = int(sys.argv[8]), int(sys.argv[9])
 
 def kv(text, tag):
     lines = re.findall(rf"^{tag} (.*)$", text, re.M)
@@ -214,6 +222,16 @@ compare(f"saturation, lean body (2 workers, queue 64, wrk -c{conns})", "lean",
         [wrk(f"http-lean-{i}") for i in range(1, rounds + 1)], inproc("lean"))
 compare("saturation, gains+trace body", "full",
         [wrk(f"http-full-{i}") for i in range(1, full_rounds + 1)], inproc("full"))
+
+# Memory across the saturation runs: an unscraped service once kept every
+# histogram sample (58 B a solve, 17 MB a minute at saturation).
+later = [wrk(f"http-lean-{i}")[1].get("200", 0) for i in range(2, rounds + 1)] + \
+    [wrk(f"http-full-{i}")[1].get("200", 0) for i in range(1, full_rounds + 1)]
+grown = rss_saturated - rss_warm
+print(f"== memory under saturation (/metrics never scraped)")
+print(f"  server RSS after the first round {rss_warm / 1024:.1f} MiB, after the last "
+      f"{rss_saturated / 1024:.1f} MiB: {grown / 1024:+.1f} MiB over {sum(later)} solves "
+      f"({grown * 1024 / max(sum(later), 1):+.1f} B per solve)")
 
 r, codes = wrk("overload")
 other = {k: v for k, v in codes.items() if k not in ("200", "503")}
