@@ -978,8 +978,34 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_duration_seconds_bucket",
         "solve_iterations_bucket",
         concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
+        "http_request_duration_seconds_bucket{route=\"/solve\",le=\"0.001\"}",
+        "http_request_duration_seconds_count{route=\"/solve\"} 3",
     ] {
         assert!(text.contains(needle), "missing {needle} in\n{text}");
+    }
+    // The process metrics, read from /proc: this test process's own.
+    #[cfg(target_os = "linux")]
+    {
+        let sample = |name: &str| -> f64 {
+            text.lines()
+                .find_map(|l| l.strip_prefix(&format!("{name} ")))
+                .and_then(|v| v.parse().ok())
+                .unwrap_or_else(|| panic!("no {name} in\n{text}"))
+        };
+        let rss = sample("process_resident_memory_bytes");
+        assert!((1e6..1e10).contains(&rss), "{rss}");
+        assert!(sample("process_cpu_seconds_total") >= 0.0); // under 10 ms reads 0
+        assert!(sample("process_open_fds") >= 3.0);
+        assert!(sample("process_max_fds") >= sample("process_open_fds"));
+        let now = std::time::SystemTime::now()
+            .duration_since(std::time::UNIX_EPOCH)
+            .unwrap()
+            .as_secs_f64();
+        let started = sample("process_start_time_seconds");
+        assert!(
+            (now - 3600.0..now + 1.0).contains(&started),
+            "{started} vs now {now}"
+        );
     }
     // Every family says what it counts (Prometheus shows it in queries).
     for family in text.lines().filter_map(|l| l.strip_prefix("# TYPE ")) {

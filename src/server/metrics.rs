@@ -19,7 +19,13 @@
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram;
-//! * `build_info{version}`, gauge, always 1.
+//! * `http_request_duration_seconds{route}`, histogram: from routing to
+//!   the answer's head (the body's transfer is not in it);
+//! * `build_info{version}`, gauge, always 1;
+//! * `process_cpu_seconds_total`, `process_resident_memory_bytes`,
+//!   `process_virtual_memory_bytes`, `process_start_time_seconds`,
+//!   `process_open_fds`, `process_max_fds`: the standard process metrics,
+//!   read from `/proc/self` at each scrape (Linux only).
 //!
 //! Each has a `# HELP` line. A labelled counter appears from its first
 //! increment (`rate()` and `absent()` alerts see no series before it).
@@ -119,17 +125,26 @@ fn describe() {
         "Time spent solving, without the queue wait, parsing or encoding the answer"
     );
     describe_histogram!("solve_iterations", "Iterations per solve");
+    describe_histogram!(
+        "http_request_duration_seconds",
+        Unit::Seconds,
+        "Time from routing a request to its answer's head, by matched route (for /solve: reading the body, queueing, solving, encoding)"
+    );
     describe_gauge!("build_info", "Always 1; the version is a label");
     metrics::gauge!("build_info", "version" => env!("CARGO_PKG_VERSION")).set(1.0);
 }
 
-/// Middleware counting requests by matched route and status.
+/// Middleware counting requests by matched route and status, and timing
+/// them by route.
 pub async fn track(req: Request, next: Next) -> Response {
+    let start = std::time::Instant::now();
     let route = req
         .extensions()
         .get::<MatchedPath>()
         .map_or_else(|| "unmatched".to_owned(), |p| p.as_str().to_owned());
     let res = next.run(req).await;
+    metrics::histogram!("http_request_duration_seconds", "route" => route.clone())
+        .record(start.elapsed().as_secs_f64());
     metrics::counter!(
         "http_requests_total",
         "route" => route,
@@ -137,4 +152,113 @@ pub async fn track(req: Request, next: Next) -> Response {
     )
     .increment(1);
     res
+}
+
+/// The standard `process_*` metrics of Prometheus client libraries, read
+/// from `/proc/self` at each scrape (Linux; empty elsewhere). Written as
+/// text rather than through the recorder, which has no floating-point
+/// counter for `process_cpu_seconds_total`.
+pub fn process_text() -> String {
+    #[cfg(target_os = "linux")]
+    {
+        linux::process_text().unwrap_or_default()
+    }
+    #[cfg(not(target_os = "linux"))]
+    {
+        String::new()
+    }
+}
+
+#[cfg(target_os = "linux")]
+mod linux {
+    use std::fmt::Write;
+
+    /// `/proc` reports CPU times and the start time in USER_HZ ticks,
+    /// which Linux fixes at 100 per second for userspace on every
+    /// architecture, whatever the kernel's own tick rate.
+    const TICKS_PER_SEC: f64 = 100.0;
+
+    pub(super) fn process_text() -> Option<String> {
+        let stat = std::fs::read_to_string("/proc/self/stat").ok()?;
+        // The command name, in parentheses, may hold spaces: fields are
+        // counted from the last ')'; field 3 (state) is index 0.
+        let fields: Vec<&str> = stat
+            .get(stat.rfind(')')? + 1..)?
+            .split_whitespace()
+            .collect();
+        let field = |n: usize| -> Option<f64> { fields.get(n - 3)?.parse().ok() };
+        let cpu = (field(14)? + field(15)?) / TICKS_PER_SEC;
+        let virtual_bytes = field(23)?;
+        let boot = std::fs::read_to_string("/proc/stat").ok()?;
+        let btime: f64 = boot
+            .lines()
+            .find_map(|l| l.strip_prefix("btime "))?
+            .trim()
+            .parse()
+            .ok()?;
+        let start = btime + field(22)? / TICKS_PER_SEC;
+        let status = std::fs::read_to_string("/proc/self/status").ok()?;
+        let rss_kb: f64 = status
+            .lines()
+            .find_map(|l| l.strip_prefix("VmRSS:"))?
+            .trim()
+            .trim_end_matches("kB")
+            .trim()
+            .parse()
+            .ok()?;
+        let open_fds = std::fs::read_dir("/proc/self/fd").ok()?.count();
+        let limits = std::fs::read_to_string("/proc/self/limits").ok()?;
+        let max_fds = limits
+            .lines()
+            .find_map(|l| l.strip_prefix("Max open files"))
+            .and_then(|l| l.split_whitespace().next())
+            .and_then(|soft| soft.parse::<f64>().ok());
+
+        let mut out = String::new();
+        let mut family = |name: &str, kind: &str, help: &str, value: f64| {
+            let _ = write!(
+                out,
+                "# HELP {name} {help}\n# TYPE {name} {kind}\n{name} {value}\n\n"
+            );
+        };
+        family(
+            "process_cpu_seconds_total",
+            "counter",
+            "User and system CPU time spent, in seconds",
+            cpu,
+        );
+        family(
+            "process_resident_memory_bytes",
+            "gauge",
+            "Resident memory size, in bytes",
+            rss_kb * 1024.0,
+        );
+        family(
+            "process_virtual_memory_bytes",
+            "gauge",
+            "Virtual memory size, in bytes",
+            virtual_bytes,
+        );
+        family(
+            "process_start_time_seconds",
+            "gauge",
+            "Start time of the process since the Unix epoch, in seconds",
+            start,
+        );
+        family(
+            "process_open_fds",
+            "gauge",
+            "Open file descriptors (sockets included)",
+            open_fds as f64,
+        );
+        if let Some(max) = max_fds {
+            family(
+                "process_max_fds",
+                "gauge",
+                "Soft limit on open file descriptors",
+                max,
+            );
+        }
+        Some(out)
+    }
 }

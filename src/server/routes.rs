@@ -796,7 +796,8 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
 )]
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    let body = metrics::handle().render();
+    let mut body = metrics::handle().render();
+    body.push_str(&metrics::process_text());
     (
         [(
             header::CONTENT_TYPE,
