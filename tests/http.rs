@@ -1189,6 +1189,10 @@ async fn shutdown_drains_in_flight_solves_then_stops() {
         .unwrap();
 }
 
+/// At the end of the grace period a running solve answers 200 `cancelled`
+/// with what it has, and a queued one, which has nothing, 503
+/// `shutting-down` (it used to answer 200 `cancelled` with the initial
+/// guess).
 #[tokio::test]
 async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
     let mut s = Server::start(Config {
@@ -1198,10 +1202,19 @@ async fn shutdown_cancels_what_the_grace_period_cannot_drain() {
     .await;
     let inflight = s.spawn_post(slow(20_000));
     tokio::time::sleep(Duration::from_millis(300)).await;
+    let queued = s.spawn_post(json!({}));
+    tokio::time::sleep(Duration::from_millis(200)).await;
     let t = Instant::now();
     s.stop.take().unwrap().send(()).unwrap();
+    // The running solve stops with what it has.
     let r: Value = inflight.await.unwrap().json().await.unwrap();
     assert_eq!(r["status"], "cancelled");
+    assert!(r["iterations"].as_u64().unwrap() > 0, "{}", r["iterations"]);
+    // The queued one never started: nothing to return but where to go.
+    let res = queued.await.unwrap();
+    assert_eq!(res.headers()["connection"], "close");
+    let p = problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:shutting-down");
     assert!(t.elapsed() < Duration::from_secs(2), "{:?}", t.elapsed());
     tokio::time::timeout(Duration::from_secs(3), s.task)
         .await

@@ -18,8 +18,9 @@
 //!   Shutdown sets every registered flag after the grace period.
 //! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers
 //!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
-//!   cancelled (they answer 200 with status `cancelled`), then the server
-//!   stops.
+//!   cancelled (a running one answers 200 with status `cancelled` and its
+//!   best trajectory so far; one still queued, which has computed nothing,
+//!   answers 503 `shutting-down`), then the server stops.
 //! * **CPU work stays on the pool.** A worker serialises its result and, if
 //!   the request's `Accept-Encoding` admits gzip, compresses it; the runtime
 //!   only moves bytes. So one runtime thread (the default up to 8 cores)

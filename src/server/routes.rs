@@ -462,7 +462,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
-        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`)", body = Problem, content_type = "application/problem+json",
+        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
     )
 )]
@@ -493,6 +493,14 @@ async fn solve(
         .pool
         .submit(move |waited| {
             let _entered = span.enter();
+            // Cancelled before a worker took it: only the end of a
+            // shutdown's grace period does that (a client that leaves
+            // withdraws its queued solve). Nothing was computed, so the
+            // answer is 503 shutting-down, which says to retry elsewhere,
+            // rather than a 200 `cancelled` holding the initial guess.
+            if cancel.load(std::sync::atomic::Ordering::SeqCst) {
+                return None;
+            }
             let remaining = budget.map(|b| b.saturating_sub(waited));
             let mut out = run_solve(&spec, remaining, &cancel);
             // Recorded here, not in the handler, so solves whose client left
@@ -518,7 +526,7 @@ async fn solve(
             // is megabytes of JSON, CPU work the async runtime should not do.
             // It comes after the budget (tens of ms at N = 10000, see
             // README "Limits"); Server-Timing reports it.
-            out.map(|r| {
+            Some(out.map(|r| {
                 let started = std::time::Instant::now();
                 r.to_json().map(|json| {
                     let body = encode(json, gzip);
@@ -530,7 +538,7 @@ async fn solve(
                     );
                     (body, timing)
                 })
-            })
+            }))
         })
         .map_err(|_| {
             reject(ApiError::Overloaded {
@@ -549,7 +557,8 @@ async fn solve(
     })?;
     ::metrics::histogram!("solve_queue_wait_seconds").record(done.queued.as_secs_f64());
     match done.outcome {
-        Ok(Ok(Ok((body, timing)))) => {
+        Ok(None) => Err(reject(ApiError::ShuttingDown)),
+        Ok(Some(Ok(Ok((body, timing))))) => {
             let mut res = (
                 [
                     (
@@ -571,11 +580,11 @@ async fn solve(
             }
             Ok(res)
         }
-        Ok(Ok(Err(e))) => {
+        Ok(Some(Ok(Err(e)))) => {
             tracing::error!(error = %e, "result serialisation failed");
             Err(reject(ApiError::Internal))
         }
-        Ok(Err(Unsolvable(field))) => Err(reject(ApiError::Validation(field.into()))),
+        Ok(Some(Err(Unsolvable(field)))) => Err(reject(ApiError::Validation(field.into()))),
         Err(panic) => {
             tracing::error!(panic = %panic.0, "solver panicked");
             Err(reject(ApiError::Internal))
