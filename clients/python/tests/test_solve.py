@@ -284,7 +284,12 @@ def test_only_a_usable_budget_raises_the_timeout() -> None:
     assert _covering((2.0, 60.0), budget(45000)) == (2.0, 60.0)
     assert _covering(None, budget(45000)) is None
     # Left for the service to refuse, or not set: the timeout as it was.
-    for unusable in [True, "45000", -1, float("nan"), None]:
+    for unusable in [True, "45000", -1, float("nan"), None, 10**20, 1e300, 10**400, float("inf")]:
         assert _covering(30.0, budget(unusable)) == 30.0, unusable
+    # Other forms requests accepts are used as given.
+    import urllib3
+
+    other = urllib3.Timeout(connect=2, read=30)
+    assert _covering(other, budget(45000)) is other
     assert _covering(30.0, {}) == 30.0
     assert _covering(30.0, {"solver": None}) == 30.0

@@ -53,6 +53,11 @@ TimeoutSpec = Union[float, Tuple[float, float]]
 #: moving it (about 0.1 s for the largest answer on a LAN).
 _BUDGET_MARGIN_S = 5.0
 
+#: Budgets above this (a day, in ms) leave the timeout alone: far past any
+#: service's maximum (60 s by default), they get a 422, and a read timeout
+#: that large overflows the socket layer's time arithmetic.
+_MAX_COVERED_BUDGET_MS = 86_400_000
+
 
 def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Optional[TimeoutSpec]:
     """``timeout`` with its read part raised to cover the time budget that
@@ -61,19 +66,30 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
     Without it, a read timeout below the budget gave up on a solve the service
     was still entitled to run, and the service then cancelled it: the caller
     got ``ReadTimeout`` instead of the trajectory. A budget that is not a
-    non-negative number is left to the service to refuse (422).
+    number from 0 to a day is left to the service to refuse (422), and a
+    timeout requests accepts in another form (a ``urllib3.Timeout``) is
+    used as it is.
     """
     solver = document.get("solver")
     limit_ms = solver.get("time_limit_ms") if isinstance(solver, Mapping) else None
-    if isinstance(limit_ms, bool) or not isinstance(limit_ms, (int, float)) or not limit_ms >= 0:
+    if (
+        isinstance(limit_ms, bool)
+        or not isinstance(limit_ms, (int, float))
+        or not 0 <= limit_ms <= _MAX_COVERED_BUDGET_MS
+    ):
         return timeout
     need = limit_ms / 1000.0 + _BUDGET_MARGIN_S
-    if timeout is None:
-        return None  # no timeout at all already waits long enough
+
+    def short(read: object) -> bool:
+        return isinstance(read, (int, float)) and not isinstance(read, bool) and read < need
+
     if isinstance(timeout, tuple):
         connect, read = timeout
-        return timeout if read is None or read >= need else (connect, need)
-    return timeout if timeout >= need else (timeout, need)
+        return (connect, need) if short(read) else timeout
+    if isinstance(timeout, (int, float)) and short(timeout):
+        return (timeout, need)
+    return timeout
+
 
 _JSON = "application/json"
 
