@@ -706,9 +706,10 @@ async fn a_declared_oversized_body_is_refused_at_once() {
 }
 
 /// The bodies being received share a memory budget
-/// (`--max-inflight-body-bytes`). Past it a new body is refused at once with
-/// 503 `overloaded` and `Retry-After`, whether it declares its length or
-/// comes in chunks, and a body's share comes back when its read ends.
+/// (`--max-inflight-body-bytes`), counted by the bytes they have sent. Past
+/// it a new body is refused at once with 503 `overloaded` and
+/// `Retry-After`, whether it declares its length or comes in chunks, and a
+/// body's share comes back when its read ends.
 #[tokio::test]
 async fn bodies_being_received_share_a_memory_budget() {
     use tokio::io::AsyncWriteExt;
@@ -718,30 +719,49 @@ async fn bodies_being_received_share_a_memory_budget() {
         ..Config::default()
     })
     .await;
-    // Two clients declare the largest body, send its start and stall: they
-    // hold the whole budget.
-    let mut stalled = Vec::new();
-    for _ in 0..2 {
-        let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-        conn.write_all(
-            b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
-              Content-Length: 4096\r\n\r\n{\"dt\":",
-        )
-        .await
-        .unwrap();
-        stalled.push(conn);
+    let head = "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n";
+    let stall = |sent: usize| {
+        let request = format!(
+            "{head}Content-Length: 4096\r\n\r\n[{}",
+            " ".repeat(sent - 1)
+        );
+        async move {
+            let mut conn = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+            conn.write_all(request.as_bytes()).await.unwrap();
+            conn
+        }
+    };
+    // Clients that declare the largest body and send (almost) none of it
+    // hold (almost) nothing: a problem still gets through.
+    let mut idle = Vec::new();
+    for _ in 0..4 {
+        idle.push(stall(1).await);
     }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    assert_eq!(
+        s.post(&json!({"solver": {"max_iterations": 1}}))
+            .await
+            .status(),
+        200
+    );
+    drop(idle);
+
+    // Two clients send all but a byte of the largest body and stall: they
+    // hold all but a few bytes of the budget.
+    let mut stalled = vec![stall(4095).await, stall(4095).await];
     tokio::time::sleep(Duration::from_millis(300)).await;
 
-    let head = "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
-                Connection: close\r\n";
+    let padded = format!("{{}}{}", " ".repeat(100));
     for (framing, body) in [
-        ("Content-Length: 2", "{}"),
-        ("Transfer-Encoding: chunked", "2\r\n{}\r\n0\r\n\r\n"),
+        (format!("Content-Length: {}", padded.len()), padded.clone()),
+        (
+            "Transfer-Encoding: chunked".to_owned(),
+            format!("{:x}\r\n{padded}\r\n0\r\n\r\n", padded.len()),
+        ),
     ] {
         let t = Instant::now();
-        let answer =
-            raw_exchange(s.addr, format!("{head}{framing}\r\n\r\n{body}").as_bytes()).await;
+        let request = format!("{head}Connection: close\r\n{framing}\r\n\r\n{body}");
+        let answer = raw_exchange(s.addr, request.as_bytes()).await;
         assert!(t.elapsed() < Duration::from_secs(1), "{:?}", t.elapsed());
         assert!(answer.starts_with("HTTP/1.1 503"), "{framing}: {answer}");
         assert!(answer.contains("retry-after: 1\r\n"), "{framing}: {answer}");
@@ -756,7 +776,7 @@ async fn bodies_being_received_share_a_memory_budget() {
         2.0
     );
 
-    // One client leaves: its 4096 bytes come back, and a problem fits.
+    // One client leaves: its bytes come back, and a problem fits.
     drop(stalled.pop());
     let t = Instant::now();
     loop {

@@ -10,12 +10,21 @@
 //! past the cap is answered 503 `overloaded` with `Retry-After`, as a full
 //! solver queue is: the same back-pressure, for the same kind of client.
 //!
-//! A body with a `Content-Length` reserves its whole length before a byte
-//! is read (and before `Expect: 100-continue` is answered), so a refused
-//! client has not sent it. A chunked body reserves the buffer it grows into,
-//! chunk by chunk. What is reserved is returned when the body is dropped,
-//! after parsing; the parsed problem is smaller than its text and is bounded
-//! by the solver queue instead.
+//! Bytes are counted as they arrive: a body holds the buffer it has grown
+//! into (doubling, up to its declared length), never more than twice what
+//! its client has sent. (Reserving a declared length up front let 16
+//! clients that sent only headers, 100 bytes each, hold the whole default
+//! budget for the read timeout.) A body whose declared length does not fit
+//! in what is free is still refused before a byte is read (and before
+//! `Expect: 100-continue` is answered), so a refused client has not sent it.
+//! What a body holds is returned when it is dropped, after parsing.
+//!
+//! Not counted: the parse itself. [`crate::problem::parse`] builds a
+//! `serde_json::Value` of the document first, up to ~25 times the text for
+//! a body that is one long array of short numbers (a 4 MB body: 112 MB at
+//! its peak). It runs on the async runtime's threads, one at a time each
+//! (`--runtime-threads`, 1 by default), so that peak is bounded by their
+//! number rather than by the number of clients.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
@@ -45,6 +54,11 @@ impl BodyBudget {
     #[cfg(test)]
     fn used(&self) -> usize {
         self.used.load(Ordering::Relaxed)
+    }
+
+    /// Bytes not held by any body.
+    fn free(&self) -> usize {
+        self.limit - self.used.load(Ordering::Acquire).min(self.limit)
     }
 
     /// Take `bytes` more from the budget, or nothing if they do not fit.
@@ -113,16 +127,20 @@ pub(crate) async fn read_with<T>(
     if declared.is_some_and(|n| n > rules.limit as u64) {
         return Err(ApiError::PayloadTooLarge(rules.limit));
     }
+    // At most `limit`, checked above.
+    let declared = declared.map(|n| n as usize);
+    // Refused before the client sends it if it cannot fit now; nothing is
+    // reserved until bytes arrive.
+    if declared.is_some_and(|n| n > rules.budget.free()) {
+        return Err(full());
+    }
+    // hyper ends a body at its declared length.
+    let ceiling = declared.unwrap_or(rules.limit);
     let mut held = Held {
         budget: rules.budget,
         bytes: 0,
     };
-    // At most `limit`, checked above.
-    let declared = declared.map_or(0, |n| n as usize);
-    if !held.grow_to(declared) {
-        return Err(full());
-    }
-    let mut buf = Vec::with_capacity(declared);
+    let mut buf: Vec<u8> = Vec::new();
     let mut body = req.into_body();
     // Bounded in time as well as size: a client that stalls mid-body would
     // otherwise hold its connection, its share of the budget and a
@@ -138,13 +156,19 @@ pub(crate) async fn read_with<T>(
                 return Err(ApiError::PayloadTooLarge(rules.limit));
             }
             if need > buf.capacity() {
-                // Grow as Vec would (doubling), but reserve it first, so
-                // the budget counts the allocation rather than the length.
-                let cap = need.max(buf.capacity() * 2).min(rules.limit);
-                if !held.grow_to(cap) {
+                // Grow as Vec would (doubling), but take it from the budget
+                // first, so the budget counts the allocation rather than the
+                // length; if the doubling does not fit, what the bytes need
+                // may.
+                let doubled = need.max(buf.capacity() * 2).min(ceiling.max(need));
+                let cap = if held.grow_to(doubled) {
+                    doubled
+                } else if held.grow_to(need) {
+                    need
+                } else {
                     return Err(full());
-                }
-                buf.reserve_exact(cap - buf.len());
+                };
+                buf.try_reserve_exact(cap - buf.len()).map_err(|_| full())?;
             }
             buf.extend_from_slice(&data);
         }
@@ -243,6 +267,38 @@ mod tests {
         .await;
         assert!(invalid.is_err());
         assert_eq!(budget.used(), 6);
+    }
+
+    /// A body in frames, as a chunked upload arrives.
+    struct Frames(std::collections::VecDeque<&'static [u8]>);
+
+    impl hyper::body::Body for Frames {
+        type Data = axum::body::Bytes;
+        type Error = std::convert::Infallible;
+
+        fn poll_frame(
+            mut self: std::pin::Pin<&mut Self>,
+            _: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<Option<Result<hyper::body::Frame<Self::Data>, Self::Error>>> {
+            let next = self.0.pop_front();
+            std::task::Poll::Ready(
+                next.map(|b| Ok(hyper::body::Frame::data(axum::body::Bytes::from_static(b)))),
+            )
+        }
+    }
+
+    /// Where doubling the buffer does not fit but the bytes do, the bytes
+    /// are taken: a body is refused only when what it has sent cannot fit.
+    #[tokio::test]
+    async fn a_chunked_body_is_counted_by_what_it_needs() {
+        let budget = BodyBudget::new(10);
+        assert!(budget.take(3));
+        let frames = Frames([&b"1234"[..], &b"56"[..]].into());
+        let req = Request::new(Body::new(frames));
+        let read = read_with(req, &rules(&budget), |b| Ok((b.len(), budget.used()))).await;
+        // 4 bytes, then 6: doubling to 8 would need 4 more than the 3 free.
+        assert_eq!(read, Ok((6, 9)));
+        assert_eq!(budget.used(), 3);
     }
 
     #[test]
