@@ -886,6 +886,8 @@ fn server_timing(res: &reqwest::Response) -> std::collections::HashMap<String, f
 async fn a_client_that_disconnects_cancels_its_solve() {
     let s = Server::start(small(1, 0)).await;
     let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let left = "http_requests_total{route=\"/solve\",status=\"499\"}";
+    let left_before = counter(&s, left).await;
     s.post_and_give_up(&slow(20_000)).await;
 
     // The only worker must be free again well before the 20 s budget.
@@ -908,6 +910,13 @@ async fn a_client_that_disconnects_cancels_its_solve() {
     assert!(
         cancelled_after >= cancelled_before + 1.0,
         "{cancelled_before} -> {cancelled_after}"
+    );
+    // And the request as one whose client left (it used to be in no
+    // request metric at all).
+    let left_after = counter(&s, left).await;
+    assert!(
+        left_after >= left_before + 1.0,
+        "{left_before} -> {left_after}"
     );
 }
 
@@ -974,6 +983,9 @@ async fn counter(s: &Server, sample: &str) -> f64 {
 #[tokio::test]
 async fn metrics_count_requests_solves_and_rejections() {
     let s = Server::default().await;
+    // The recorder is the process's: other tests' requests count too.
+    let timed = "http_request_duration_seconds_count{route=\"/solve\"}";
+    let timed_before = counter(&s, timed).await;
     assert_eq!(s.post(&json!({})).await.status(), 200);
     assert_eq!(s.post(&json!({"dt": 0})).await.status(), 422);
     let malformed = reqwest::Client::new()
@@ -994,15 +1006,22 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_rejections_total{reason=\"invalid\"}",
         "solve_rejections_total{reason=\"malformed_json\"}",
         "solve_queue_depth",
+        "request_body_bytes_held",
         "solve_queue_wait_seconds_bucket",
         "solve_duration_seconds_bucket",
         "solve_iterations_bucket",
         concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
         "http_request_duration_seconds_bucket{route=\"/solve\",le=\"0.001\"}",
-        "http_request_duration_seconds_count{route=\"/solve\"} 3",
+        "http_request_duration_seconds_count{route=\"/solve\"}",
     ] {
         assert!(text.contains(needle), "missing {needle} in\n{text}");
     }
+    // Timed: the solve, the invalid problem and the malformed body.
+    let timed_after = counter(&s, timed).await;
+    assert!(
+        timed_after >= timed_before + 3.0,
+        "{timed_before} -> {timed_after}"
+    );
     // The process metrics, read from /proc: this test process's own.
     #[cfg(target_os = "linux")]
     {

@@ -51,8 +51,7 @@ impl BodyBudget {
     }
 
     /// Bytes held now, over all bodies.
-    #[cfg(test)]
-    fn used(&self) -> usize {
+    pub(crate) fn used(&self) -> usize {
         self.used.load(Ordering::Relaxed)
     }
 

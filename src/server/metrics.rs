@@ -3,10 +3,11 @@
 //! One process-wide recorder from the `metrics` facade, rendered by
 //! `GET /metrics`. Names:
 //!
-//! * `http_requests_total{route, status}`, counter, every answer a route
-//!   sent. Not counted: what hyper rejects before any route runs (400 for
-//!   broken framing, 431), and a request whose client left before its
-//!   answer (its solve counts as `cancelled` below);
+//! * `http_requests_total{route, status}`, counter, every request that
+//!   reached a route, by the status of its answer: 500 for a handler that
+//!   panicked, and `499` for a request whose client left before its answer
+//!   (its solve counts as `cancelled` below). Not counted: what hyper
+//!   rejects before any route runs (400 for broken framing, 431);
 //! * `solves_total{status}`, counter, by solve status (`converged`, …); a
 //!   solve withdrawn from the queue because its client left counts as
 //!   `cancelled`;
@@ -17,6 +18,8 @@
 //!   `--max-inflight-body-bytes`), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
+//! * `request_body_bytes_held`, gauge: bytes the bodies being read hold,
+//!   against `--max-inflight-body-bytes`;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram;
 //! * `http_request_duration_seconds{route}`, histogram: from routing to
@@ -114,6 +117,11 @@ fn describe() {
         "POST /solve requests answered with an error, by reason"
     );
     describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
+    describe_gauge!(
+        "request_body_bytes_held",
+        Unit::Bytes,
+        "Bytes held by the request bodies being read, against --max-inflight-body-bytes"
+    );
     describe_histogram!(
         "solve_queue_wait_seconds",
         Unit::Seconds,
@@ -135,23 +143,66 @@ fn describe() {
 }
 
 /// Middleware counting requests by matched route and status, and timing
-/// them by route.
+/// them by route: every request that reached a route, including those
+/// whose handler panicked (500, answered by the panic layer outside) and
+/// those whose client left first (`status="499"`, nginx's code for it; the
+/// slowest requests are often these).
 pub async fn track(req: Request, next: Next) -> Response {
-    let start = std::time::Instant::now();
     let route = req
         .extensions()
         .get::<MatchedPath>()
         .map_or_else(|| "unmatched".to_owned(), |p| p.as_str().to_owned());
-    let res = next.run(req).await;
-    metrics::histogram!("http_request_duration_seconds", "route" => route.clone())
-        .record(start.elapsed().as_secs_f64());
-    metrics::counter!(
-        "http_requests_total",
-        "route" => route,
-        "status" => res.status().as_u16().to_string()
-    )
-    .increment(1);
-    res
+    let mut seen = Seen {
+        route,
+        start: std::time::Instant::now(),
+        recorded: false,
+    };
+    let mut answer = std::pin::pin!(next.run(req));
+    let polled = std::future::poll_fn(|cx| {
+        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| answer.as_mut().poll(cx)))
+            .map_or_else(|panic| std::task::Poll::Ready(Err(panic)), |p| p.map(Ok))
+    })
+    .await;
+    match polled {
+        Ok(res) => {
+            seen.record(res.status().as_u16());
+            res
+        }
+        Err(panic) => {
+            seen.record(500);
+            std::panic::resume_unwind(panic)
+        }
+    }
+}
+
+/// A request being tracked: recorded once, with 499 if it is dropped
+/// before its answer (the client left and hyper dropped the handler).
+struct Seen {
+    route: String,
+    start: std::time::Instant,
+    recorded: bool,
+}
+
+impl Seen {
+    fn record(&mut self, status: u16) {
+        self.recorded = true;
+        metrics::histogram!("http_request_duration_seconds", "route" => self.route.clone())
+            .record(self.start.elapsed().as_secs_f64());
+        metrics::counter!(
+            "http_requests_total",
+            "route" => self.route.clone(),
+            "status" => status.to_string()
+        )
+        .increment(1);
+    }
+}
+
+impl Drop for Seen {
+    fn drop(&mut self) {
+        if !self.recorded {
+            self.record(499);
+        }
+    }
 }
 
 /// The standard `process_*` metrics of Prometheus client libraries, read
@@ -260,5 +311,40 @@ mod linux {
             );
         }
         Some(out)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use axum::Router;
+    use axum::body::Body;
+    use axum::routing::get;
+    use tower::ServiceExt;
+
+    async fn boom() -> &'static str {
+        panic!("on purpose")
+    }
+
+    /// A handler that panics is counted (and timed) as the 500 the panic
+    /// layer outside answers; the panic still reaches that layer.
+    #[tokio::test]
+    async fn a_panicking_handler_is_counted_as_500() {
+        let handle = super::handle();
+        let app = Router::new()
+            .route("/tracked-panic", get(boom))
+            .layer(axum::middleware::from_fn(super::track))
+            .layer(tower_http::catch_panic::CatchPanicLayer::new());
+        let req = axum::http::Request::get("/tracked-panic")
+            .body(Body::empty())
+            .unwrap();
+        let res = app.oneshot(req).await.unwrap();
+        assert_eq!(res.status(), 500);
+        let text = handle.render();
+        for needle in [
+            "http_requests_total{route=\"/tracked-panic\",status=\"500\"} 1",
+            "http_request_duration_seconds_count{route=\"/tracked-panic\"} 1",
+        ] {
+            assert!(text.contains(needle), "missing {needle} in\n{text}");
+        }
     }
 }

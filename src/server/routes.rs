@@ -805,6 +805,7 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
 )]
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
+    ::metrics::gauge!("request_body_bytes_held").set(st.bodies.used() as f64);
     let mut body = metrics::handle().render();
     body.push_str(&metrics::process_text());
     (
