@@ -283,6 +283,8 @@ def test_only_a_usable_budget_raises_the_timeout() -> None:
     assert _covering((2.0, 10.0), budget(45000)) == (2.0, 50.0)
     assert _covering((2.0, 60.0), budget(45000)) == (2.0, 60.0)
     assert _covering(None, budget(45000)) is None
+    # A service may accept budgets of days (--max-time-limit-ms has no cap).
+    assert _covering(30.0, budget(86_400_001)) == (30.0, 86_405.001)
     # Left for the service to refuse, or not set: the timeout as it was.
     for unusable in [True, "45000", -1, float("nan"), None, 10**20, 1e300, 10**400, float("inf")]:
         assert _covering(30.0, budget(unusable)) == 30.0, unusable

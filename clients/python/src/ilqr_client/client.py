@@ -53,10 +53,11 @@ TimeoutSpec = Union[float, Tuple[float, float]]
 #: moving it (about 0.1 s for the largest answer on a LAN).
 _BUDGET_MARGIN_S = 5.0
 
-#: Budgets above this (a day, in ms) leave the timeout alone: far past any
-#: service's maximum (60 s by default), they get a 422, and a read timeout
-#: that large overflows the socket layer's time arithmetic.
-_MAX_COVERED_BUDGET_MS = 86_400_000
+#: Budgets above this (about 31 years, in ms) leave the timeout alone: a
+#: read timeout much larger overflows the socket layer's time arithmetic
+#: (CPython's fails between 9e9 and 1e10 s). A service may be configured to
+#: accept any budget, so anything smaller is covered.
+_MAX_COVERED_BUDGET_MS = 10**12
 
 
 def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Optional[TimeoutSpec]:
@@ -66,7 +67,7 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
     Without it, a read timeout below the budget gave up on a solve the service
     was still entitled to run, and the service then cancelled it: the caller
     got ``ReadTimeout`` instead of the trajectory. A budget that is not a
-    number from 0 to a day is left to the service to refuse (422), and a
+    number from 0 to 1e12 ms (31 years) is left to the service to refuse (422), and a
     timeout requests accepts in another form (a ``urllib3.Timeout``) is
     used as it is.
     """
