@@ -728,6 +728,44 @@ fn metrics_upkeep_runs_without_a_scrape() {
     );
 }
 
+/// A client that closes its connection mid-body is counted as 499 (it left),
+/// not as a 400 `unreadable_body` answer that nobody received. The server's
+/// own process, so its metrics count this test's requests only.
+#[test]
+fn a_client_that_leaves_mid_body_is_counted_as_499() {
+    use std::io::Write;
+    let (_server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["serve", "--bind", bind, "--workers", "1"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    let mut conn = std::net::TcpStream::connect(&bind).unwrap();
+    conn.write_all(
+        b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+          Content-Length: 5000\r\n\r\n{\"horizon\": 100",
+    )
+    .unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(200));
+    drop(conn);
+    let started = std::time::Instant::now();
+    let metrics = loop {
+        let text = exchange(
+            &bind,
+            "GET /metrics HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+        );
+        if text.contains("status=\"499\"") || started.elapsed().as_secs() > 5 {
+            break text;
+        }
+        std::thread::sleep(std::time::Duration::from_millis(50));
+    };
+    assert!(
+        metrics.contains("http_requests_total{route=\"/solve\",status=\"499\"} 1"),
+        "{metrics}"
+    );
+    assert!(!metrics.contains("unreadable_body"), "{metrics}");
+    assert!(!metrics.contains("status=\"400\""), "{metrics}");
+}
+
 /// Stop a server started with piped stdout; what it wrote there.
 fn stop_and_read_stdout(server: &mut Child) -> String {
     use std::io::Read;

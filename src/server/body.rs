@@ -146,7 +146,13 @@ pub(crate) async fn read_with<T>(
     // shutdown indefinitely.
     let read = async {
         while let Some(frame) = body.frame().await {
-            let frame = frame.map_err(|e| ApiError::UnreadableBody(chain(&e)))?;
+            let frame = frame.map_err(|e| {
+                if ended_by_client(&e) {
+                    ApiError::ClientLeft
+                } else {
+                    ApiError::UnreadableBody(chain(&e))
+                }
+            })?;
             let Ok(data) = frame.into_data() else {
                 continue; // trailers
             };
@@ -178,6 +184,35 @@ pub(crate) async fn read_with<T>(
         .await
         .map_err(|_| ApiError::RequestTimeout(secs))??;
     parse(&buf)
+}
+
+/// Whether a body's read error is the client closing its connection
+/// before the body's end (an end of file inside the body, a reset), rather
+/// than a body that cannot be read (broken chunked framing).
+fn ended_by_client(e: &(dyn std::error::Error + 'static)) -> bool {
+    use std::io::ErrorKind;
+    let mut next = Some(e);
+    while let Some(err) = next {
+        if err
+            .downcast_ref::<hyper::Error>()
+            .is_some_and(hyper::Error::is_incomplete_message)
+        {
+            return true;
+        }
+        if let Some(io) = err.downcast_ref::<std::io::Error>()
+            && matches!(
+                io.kind(),
+                ErrorKind::UnexpectedEof
+                    | ErrorKind::ConnectionReset
+                    | ErrorKind::ConnectionAborted
+                    | ErrorKind::BrokenPipe
+            )
+        {
+            return true;
+        }
+        next = err.source();
+    }
+    false
 }
 
 /// `e` with its causes, as "outer: inner: …": hyper's outermost error says
@@ -298,6 +333,42 @@ mod tests {
         // 4 bytes, then 6: doubling to 8 would need 4 more than the 3 free.
         assert_eq!(read, Ok((6, 9)));
         assert_eq!(budget.used(), 3);
+    }
+
+    /// A body whose connection ends early.
+    struct Cut(std::io::ErrorKind);
+
+    impl hyper::body::Body for Cut {
+        type Data = axum::body::Bytes;
+        type Error = std::io::Error;
+
+        fn poll_frame(
+            self: std::pin::Pin<&mut Self>,
+            _: &mut std::task::Context<'_>,
+        ) -> std::task::Poll<Option<Result<hyper::body::Frame<Self::Data>, Self::Error>>> {
+            std::task::Poll::Ready(Some(Err(self.0.into())))
+        }
+    }
+
+    /// A client that leaves mid-body is told apart from a body that cannot
+    /// be read, so that it is counted as 499, not as a 400 nobody received.
+    #[tokio::test]
+    async fn a_cut_connection_is_a_client_that_left() {
+        use std::io::ErrorKind;
+        let budget = BodyBudget::new(10);
+        for (kind, left) in [
+            (ErrorKind::UnexpectedEof, true),
+            (ErrorKind::ConnectionReset, true),
+            (ErrorKind::InvalidData, false),
+        ] {
+            let req = Request::new(Body::new(Cut(kind)));
+            let read = read_with(req, &rules(&budget), |_| Ok(())).await;
+            match read {
+                Err(ApiError::ClientLeft) => assert!(left, "{kind:?}"),
+                Err(ApiError::UnreadableBody(_)) => assert!(!left, "{kind:?}"),
+                other => panic!("{kind:?}: {other:?}"),
+            }
+        }
     }
 
     #[test]

@@ -76,6 +76,10 @@ pub enum ApiError {
     /// The body could not be read: the connection broke, or its framing
     /// (chunked encoding) is invalid (400).
     UnreadableBody(String),
+    /// The client closed its connection before its body arrived (499,
+    /// nginx's code; nobody receives the answer, which exists for the
+    /// access log and `http_requests_total`).
+    ClientLeft,
     /// The solver queue is full, or the request bodies being received take
     /// all of their memory budget (503 with `Retry-After`).
     Overloaded { retry_after: u64, cause: Overload },
@@ -125,6 +129,11 @@ impl ApiError {
                 "overloaded",
                 "Service overloaded",
             ),
+            Self::ClientLeft => (
+                StatusCode::from_u16(499).unwrap_or(StatusCode::BAD_REQUEST),
+                "client-left",
+                "Client closed request",
+            ),
             Self::ShuttingDown => (
                 StatusCode::SERVICE_UNAVAILABLE,
                 "shutting-down",
@@ -161,6 +170,7 @@ impl ApiError {
                 cause: Overload::Bodies,
                 ..
             } => "body_budget",
+            Self::ClientLeft => "client_left",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
             Self::NotFound(_) => "not_found",
@@ -229,6 +239,11 @@ impl ApiError {
                 },
                 vec![],
                 Some(*retry_after),
+            ),
+            Self::ClientLeft => (
+                "the client closed the connection before its body arrived".into(),
+                vec![],
+                None,
             ),
             Self::ShuttingDown => (
                 "the service is draining before shutdown; retry on another replica".into(),

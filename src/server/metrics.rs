@@ -106,7 +106,7 @@ fn describe() {
     use metrics::{Unit, describe_counter, describe_gauge, describe_histogram};
     describe_counter!(
         "http_requests_total",
-        "Answers sent, by matched route (\"unmatched\" for none) and HTTP status"
+        "Requests that reached a route, by matched route (\"unmatched\" for none) and the HTTP status of their answer (499: the client left first)"
     );
     describe_counter!(
         "solves_total",

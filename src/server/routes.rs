@@ -486,6 +486,7 @@ async fn solve(
     let cancel = Arc::clone(&guard.flag);
     // The request span (and its request_id) follows the solve to the worker.
     let span = tracing::Span::current();
+    let draining = Arc::clone(&st);
     // The budget runs from admission: time spent waiting for a worker is
     // part of it, so a caller's deadline holds under load too.
     let budget = spec.time_limit(Some(Duration::from_millis(st.config.default_time_limit_ms)));
@@ -493,12 +494,13 @@ async fn solve(
         .pool
         .submit(move |waited| {
             let _entered = span.enter();
-            // Cancelled before a worker took it: only the end of a
-            // shutdown's grace period does that (a client that leaves
-            // withdraws its queued solve). Nothing was computed, so the
-            // answer is 503 shutting-down, which says to retry elsewhere,
-            // rather than a 200 `cancelled` holding the initial guess.
-            if cancel.load(std::sync::atomic::Ordering::SeqCst) {
+            // Cancelled by a shutdown before a worker took it. Nothing was
+            // computed, so the answer is 503 shutting-down, which says to
+            // retry elsewhere, rather than a 200 `cancelled` holding the
+            // initial guess. (A client that leaves withdraws its queued
+            // solve; one that leaves just as a worker takes it gets the
+            // solve's own `cancelled`, counted in solves_total.)
+            if cancel.load(std::sync::atomic::Ordering::SeqCst) && draining.is_draining() {
                 return None;
             }
             let remaining = budget.map(|b| b.saturating_sub(waited));
@@ -736,7 +738,11 @@ impl<T> Drop for Waiting<T> {
 
 /// Count a rejected request by reason, and pass the error on.
 fn reject(e: ApiError) -> ApiError {
-    ::metrics::counter!("solve_rejections_total", "reason" => e.reason()).increment(1);
+    // A client that left is counted as status 499 in http_requests_total,
+    // as when it leaves during its solve; nothing was answered to reject.
+    if e != ApiError::ClientLeft {
+        ::metrics::counter!("solve_rejections_total", "reason" => e.reason()).increment(1);
+    }
     e
 }
 
