@@ -705,17 +705,22 @@ fn text_logs_to_a_pipe_have_no_colour_escapes() {
     assert!(!logs.contains('\u{1b}'), "escape codes in {logs:?}");
 }
 
+/// `serve` with one worker and its output discarded, on a free port.
+fn serve_quietly() -> (Child, String) {
+    serve_on_free_port(|cmd, bind| {
+        cmd.args(["serve", "--bind", bind, "--workers", "1"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    })
+}
+
 /// The running service folds histogram samples into buckets on a thread of
 /// its own: without it they were kept until `/metrics` was scraped, and an
 /// unscraped service grew by 2.9 MB per 10 s at saturation.
 #[cfg(target_os = "linux")]
 #[test]
 fn metrics_upkeep_runs_without_a_scrape() {
-    let (server, _) = serve_on_free_port(|cmd, bind| {
-        cmd.args(["serve", "--bind", bind, "--workers", "1"])
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null());
-    });
+    let (server, _) = serve_quietly();
     let tasks = format!("/proc/{}/task", server.0.id());
     let names: Vec<String> = std::fs::read_dir(&tasks)
         .unwrap()
@@ -734,11 +739,7 @@ fn metrics_upkeep_runs_without_a_scrape() {
 #[test]
 fn a_client_that_leaves_mid_body_is_counted_as_499() {
     use std::io::Write;
-    let (_server, bind) = serve_on_free_port(|cmd, bind| {
-        cmd.args(["serve", "--bind", bind, "--workers", "1"])
-            .stdout(std::process::Stdio::null())
-            .stderr(std::process::Stdio::null());
-    });
+    let (_server, bind) = serve_quietly();
     let mut conn = std::net::TcpStream::connect(&bind).unwrap();
     conn.write_all(
         b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\

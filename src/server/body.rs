@@ -57,7 +57,7 @@ impl BodyBudget {
 
     /// Bytes not held by any body.
     fn free(&self) -> usize {
-        self.limit - self.used.load(Ordering::Acquire).min(self.limit)
+        self.limit.saturating_sub(self.used.load(Ordering::Acquire))
     }
 
     /// Take `bytes` more from the budget, or nothing if they do not fit.

@@ -4,7 +4,7 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use axum::Json;
-use axum::extract::{DefaultBodyLimit, FromRequest, Request, State};
+use axum::extract::{FromRequest, Request, State};
 use axum::http::{HeaderMap, HeaderValue, StatusCode, header};
 use axum::response::{IntoResponse, Response};
 use serde::Serialize;
@@ -189,7 +189,6 @@ pub fn openapi_json() -> String {
 
 /// The whole application: routes, docs and middleware.
 pub fn app(state: Arc<AppState>) -> axum::Router {
-    let body_limit = state.config.max_body_bytes;
     let gzip_level = state.config.gzip_level;
     let limits = with_limits(&state.config);
     let (router, spec) = api_router().with_state(state).split_for_parts();
@@ -213,7 +212,6 @@ pub fn app(state: Arc<AppState>) -> axum::Router {
         )
         .fallback(not_found)
         .method_not_allowed_fallback(method_not_allowed)
-        .layer(DefaultBodyLimit::max(body_limit))
         .layer(axum::middleware::from_fn(metrics::track));
     router.layer(
         ServiceBuilder::new()
@@ -486,7 +484,7 @@ async fn solve(
     let cancel = Arc::clone(&guard.flag);
     // The request span (and its request_id) follows the solve to the worker.
     let span = tracing::Span::current();
-    let draining = Arc::clone(&st);
+    let state = Arc::clone(&st);
     // The budget runs from admission: time spent waiting for a worker is
     // part of it, so a caller's deadline holds under load too.
     let budget = spec.time_limit(Some(Duration::from_millis(st.config.default_time_limit_ms)));
@@ -500,7 +498,7 @@ async fn solve(
             // initial guess. (A client that leaves withdraws its queued
             // solve; one that leaves just as a worker takes it gets the
             // solve's own `cancelled`, counted in solves_total.)
-            if cancel.load(std::sync::atomic::Ordering::SeqCst) && draining.is_draining() {
+            if cancel.load(std::sync::atomic::Ordering::SeqCst) && state.is_draining() {
                 return None;
             }
             let remaining = budget.map(|b| b.saturating_sub(waited));
