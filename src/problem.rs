@@ -196,7 +196,8 @@ pub struct SolverSpec {
     /// Wall-clock budget in ms. When it runs out the solve stops with status
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
-    /// of it. It is checked every iteration and every 128 knots inside the
+    /// of it; a solve still waiting when it runs out is answered then, with
+    /// 0 iterations and the initial guess. It is checked every iteration and every 128 knots inside the
     /// linearisation, backward pass and rollouts: at N = 10000, budgets that
     /// fell after the initial rollout were overrun by a median of 0.00–0.85
     /// ms, with 1 or 100 obstacles (measured). The initial rollout always

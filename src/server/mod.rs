@@ -10,7 +10,10 @@
 //! * **Time budget.** Every solve gets `solver.time_limit_ms` or the
 //!   configured default; the solver checks it every iteration and every 128
 //!   knots inside its passes, and returns the best trajectory so far with
-//!   status `time_limit`.
+//!   status `time_limit`. It runs from admission: a solve still queued when
+//!   it runs out is taken back from the queue and answered then, on a
+//!   blocking thread (a rollout of the initial guess, 0 iterations), not
+//!   when a worker gets to it behind longer solves.
 //! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
 //!   polls with the budget. A guard owned by the request handler sets it when
 //!   the handler is dropped, which is what hyper does when the client

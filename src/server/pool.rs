@@ -13,6 +13,10 @@
 //! * a job is withdrawn from the queue when its [`Ticket`] is dropped before
 //!   a worker took it (the client went away), so an abandoned request frees
 //!   its slot at once instead of holding it until a worker gets there;
+//! * a caller may also take its job back out of the queue to run it on a
+//!   thread of its own ([`Ticket::claim`]; the HTTP layer does so when a
+//!   solve's time budget runs out while it waits). The job keeps its slot
+//!   until it has run, so the limit above still holds;
 //! * a panicking job is caught with `catch_unwind` and reported to its caller
 //!   as [`Panicked`]; the worker thread lives on.
 //!
@@ -202,6 +206,19 @@ impl<T> Ticket<T> {
             None => false,
         }
     }
+
+    /// Take the job out of the queue, if it is still waiting there, to run
+    /// it elsewhere: calling the returned closure does what a worker would
+    /// (its outcome arrives through [`Ticket::done`]). Until it has run the
+    /// job counts as running, so it keeps its slot.
+    pub fn claim(&self) -> Option<impl FnOnce() + Send + 'static> {
+        let mut st = self.shared.lock();
+        let pos = st.queue.iter().position(|(id, _)| *id == self.id)?;
+        let (_, job) = st.queue.remove(pos)?;
+        // The job gives the slot back when it ends, as under a worker.
+        st.running += 1;
+        Some(job)
+    }
 }
 
 impl<T> Drop for Ticket<T> {
@@ -312,6 +329,33 @@ mod tests {
         blocker.done().await.unwrap().outcome.unwrap();
         assert_eq!(next.done().await.unwrap().outcome, Ok(0));
         assert_eq!(ran.load(Ordering::SeqCst), 0, "the withdrawn job never ran");
+    }
+
+    #[tokio::test]
+    async fn a_claimed_job_runs_on_the_callers_thread_and_keeps_its_slot() {
+        let pool = Pool::new(1, 1).unwrap();
+        let (mut blocker, release) = block_a_worker(&pool);
+        let mut queued = pool
+            .submit(|_| std::thread::current().name().map(str::to_owned))
+            .unwrap();
+        let job = queued.claim().expect("still queued");
+        assert!(queued.claim().is_none(), "claimed once only");
+        assert_eq!(pool.queue_depth(), 0);
+        // Taken out of the queue but not yet run: its slot is still taken.
+        assert!(matches!(pool.submit(|_| ()), Err(Full)));
+        std::thread::Builder::new()
+            .name("claimer".into())
+            .spawn(job)
+            .unwrap()
+            .join()
+            .unwrap();
+        let done = queued.done().await.unwrap();
+        assert_eq!(done.outcome, Ok(Some("claimer".to_owned())));
+        // Run and answered: the slot is free again, with the worker busy.
+        let mut next = pool.submit(|_| None::<String>).unwrap();
+        release.send(()).unwrap();
+        blocker.done().await.unwrap().outcome.unwrap();
+        assert_eq!(next.done().await.unwrap().outcome, Ok(None));
     }
 
     #[tokio::test]

@@ -488,6 +488,7 @@ async fn solve(
     // The budget runs from admission: time spent waiting for a worker is
     // part of it, so a caller's deadline holds under load too.
     let budget = spec.time_limit(Some(Duration::from_millis(st.config.default_time_limit_ms)));
+    let deadline = budget.and_then(|b| tokio::time::Instant::now().checked_add(b));
     let ticket = st
         .pool
         .submit(move |waited| {
@@ -548,7 +549,30 @@ async fn solve(
         })?;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     let mut waiting = Waiting(ticket, tracing::Span::current());
-    let done = waiting.0.done().await;
+    let done = match deadline {
+        None => waiting.0.done().await,
+        Some(deadline) => {
+            let expired = tokio::select! {
+                done = waiting.0.done() => Err(done),
+                () = tokio::time::sleep_until(deadline) => Ok(()),
+            };
+            match expired {
+                Err(done) => done,
+                Ok(()) => {
+                    // The budget ran out while the solve waited for a
+                    // worker: answer now, not when a worker gets to it
+                    // (seconds later behind long solves). A blocking thread
+                    // runs it; with no budget left it only rolls out the
+                    // initial guess, and it holds its pool slot meanwhile.
+                    // Already taken by a worker, it stops at its budget.
+                    if let Some(job) = waiting.0.claim() {
+                        drop(tokio::task::spawn_blocking(job));
+                    }
+                    waiting.0.done().await
+                }
+            }
+        }
+    };
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     drop(guard);
     let done = done.ok_or_else(|| {
