@@ -908,9 +908,11 @@ impl Shapes {
 /// pointer where reading stopped, as the issue asks for NaN: a number beyond
 /// the range of f64 (`1e999`, JSON's nearest to Infinity), a string with an
 /// unpaired surrogate escape (`"\ud800"`), and nesting 128 levels deep or
-/// more (serde_json's limit). The document is then checked again for UTF-8
-/// and grammar, so that a syntax error anywhere still wins. Such a document
-/// is not read further: it reports that one value.
+/// more (serde_json's limit). So is a bare `NaN` or `Infinity` (not JSON,
+/// but what Python's `json.dumps` writes). The document is then checked
+/// again for UTF-8 and grammar (with those tokens masked), so that a syntax
+/// error anywhere still wins. Such a document is not read further: it
+/// reports that one value.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     // RFC 8259 §8.1 lets a parser ignore a leading byte order mark, and
     // Windows tools often write one; anywhere else it is not JSON.
@@ -1141,7 +1143,15 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
             bad.valid_up_to() + skipped
         ));
     }
-    if let Err(syntax) = serde_json::from_slice::<serde::de::IgnoredAny>(bytes) {
+    // A bare NaN or Infinity is not JSON, but it is what Python's
+    // `json.dumps` writes for a float that is one: a bad value at its
+    // pointer, if it is the document's only
+    // departure from the grammar. Masked with a number of the same length,
+    // so a real syntax error elsewhere keeps its line and column.
+    let masked = mask_non_finite(bytes);
+    if let Err(syntax) =
+        serde_json::from_slice::<serde::de::IgnoredAny>(masked.as_deref().unwrap_or(bytes))
+    {
         return ParseError::Syntax(syntax.to_string());
     }
     let message = e.to_string();
@@ -1169,6 +1179,20 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         return ParseError::Shape(Shapes::one(FieldError {
             pointer: path.to_owned(),
             detail,
+        }));
+    } else if masked.is_some()
+        && (message.starts_with("expected value") || message.starts_with("invalid number"))
+    {
+        // The grammar holds once the tokens are masked, so reading stopped
+        // at the first of them.
+        let token = non_finite_at(bytes, e.line(), e.column()).unwrap_or("NaN or Infinity");
+        let expected = count_expected(path, None).unwrap_or("a finite number".into());
+        return ParseError::Shape(Shapes::one(FieldError {
+            pointer: path.to_owned(),
+            detail: format!(
+                "got {token}, which is not JSON (Python's json.dumps writes it for a \
+                 non-finite float): expected {expected}"
+            ),
         }));
     } else if message.starts_with("recursion limit exceeded") {
         // The path is over a hundred levels deep by now; point at the
@@ -1199,6 +1223,84 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         pointer,
         detail: detail.to_owned(),
     }))
+}
+
+/// The tokens a JSON writer may emit for non-finite floats, longest first
+/// where one starts another.
+const NON_FINITE: [&[u8]; 2] = [b"NaN", b"Infinity"];
+
+/// A copy of `bytes` with every bare `NaN` or `Infinity` (optionally after
+/// `-`) in a value's place, outside strings, replaced by a `0` and spaces;
+/// `None` if there is none. In a value's place: after `:`, `[` or `,` and
+/// whitespace, so `1NaN` stays the syntax error it is.
+fn mask_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
+    let mut out: Option<Vec<u8>> = None;
+    let (mut i, mut in_string, mut after) = (0, false, b'\0');
+    while let Some(&b) = bytes.get(i) {
+        if in_string {
+            match b {
+                b'\\' => i += 1,
+                b'"' => in_string = false,
+                _ => {}
+            }
+        } else if b == b'"' {
+            in_string = true;
+        } else if matches!(after, b':' | b'[' | b',' | b'-')
+            && let Some(len) = NON_FINITE
+                .iter()
+                .find(|t| bytes[i..].starts_with(t))
+                .map(|t| t.len())
+        {
+            let out = out.get_or_insert_with(|| bytes.to_vec());
+            out[i] = b'0';
+            out[i + 1..i + len].fill(b' ');
+            i += len;
+            after = b'0';
+            continue;
+        }
+        if !b.is_ascii_whitespace() {
+            // A `-` counts only straight after a value's place.
+            after = if b == b'-' && !matches!(after, b':' | b'[' | b',') {
+                b'0'
+            } else {
+                b
+            };
+        }
+        i += 1;
+    }
+    out
+}
+
+/// The non-finite token at serde_json's one-based `line` and `column`
+/// (bytes), with its sign.
+fn non_finite_at(bytes: &[u8], line: usize, column: usize) -> Option<&'static str> {
+    let start = if line <= 1 {
+        0
+    } else {
+        bytes
+            .iter()
+            .enumerate()
+            .filter(|(_, b)| **b == b'\n')
+            .nth(line - 2)?
+            .0
+            + 1
+    };
+    let at = start + column.checked_sub(1)?;
+    let negative = at > 0 && bytes.get(at - 1) == Some(&b'-');
+    let rest = bytes.get(at..)?;
+    Some(
+        match (
+            rest.starts_with(b"NaN"),
+            rest.starts_with(b"Infinity"),
+            negative,
+        ) {
+            (true, _, false) => "NaN",
+            (true, _, true) => "-NaN",
+            (_, true, false) => "Infinity",
+            (_, true, true) => "-Infinity",
+            _ => return None,
+        },
+    )
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,

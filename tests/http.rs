@@ -365,6 +365,22 @@ async fn every_error_class_is_a_problem_document() {
         StatusCode::BAD_REQUEST,
     )
     .await;
+    // So is the bare NaN that Python's json.dumps writes, which JSON lacks.
+    let p = problem_of(
+        raw("{\"dt\": NaN}", Some("application/json"))
+            .await
+            .unwrap(),
+        StatusCode::UNPROCESSABLE_ENTITY,
+    )
+    .await;
+    assert_eq!(p["errors"][0]["pointer"], "/dt");
+    problem_of(
+        raw("{\"dt\": NaN,}", Some("application/json"))
+            .await
+            .unwrap(),
+        StatusCode::BAD_REQUEST,
+    )
+    .await;
     // A key given twice is ambiguous, not last-wins.
     let p = problem_of(
         raw("{\"dt\": 0.05, \"dt\": 10}", Some("application/json"))

@@ -143,6 +143,74 @@ fn out_of_range_numbers_are_rejected() {
     }
 }
 
+/// A bare NaN or Infinity is not JSON, but Python's `json.dumps` writes it:
+/// a bad value at its pointer when it is the document's only departure
+/// from the grammar, a syntax error otherwise.
+#[test]
+fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
+    for (doc, pointer, token) in [
+        (&br#"{"dt": NaN}"#[..], "/dt", "got NaN,"),
+        (br#"{"dt":-Infinity}"#, "/dt", "got -Infinity,"),
+        (
+            br#"{"weights": {"state": [1, Infinity, 1, 1, 1, 1]}}"#,
+            "/weights/state/1",
+            "got Infinity,",
+        ),
+        (
+            "{\"x\": \"\u{e9}\\\" NaN [\",\n \"obstacles\": [{\"center\": [0,\n   -NaN]}]}"
+                .as_bytes(),
+            "/obstacles/0/center/1",
+            "got -NaN,",
+        ),
+        // The first one read is the one told.
+        (
+            br#"{"dt": 0.05, "horizon": NaN, "x": NaN}"#,
+            "/horizon",
+            "got NaN,",
+        ),
+    ] {
+        let text = String::from_utf8_lossy(doc);
+        match parse(doc) {
+            Err(ParseError::Shape(s)) => {
+                let f = s.first().clone();
+                assert_eq!(f.pointer, pointer, "{text}");
+                assert!(f.detail.starts_with(token), "{text}: {}", f.detail);
+                let expected = if pointer == "/horizon" {
+                    "expected an integer from 1 to the maximum horizon"
+                } else {
+                    "expected a finite number"
+                };
+                assert!(f.detail.contains(expected), "{text}: {}", f.detail);
+            }
+            other => panic!("{text}: {other:?}"),
+        }
+    }
+    // Anything else wrong with the grammar is still a syntax error, told
+    // where it is (not at the NaN).
+    for (doc, message) in [
+        (
+            &br#"{"dt": NaN, "horizon": }"#[..],
+            "expected value at line 1 column 24",
+        ),
+        (br#"{"dt": 1NaN}"#, "expected `,` or `}` at line 1 column 9"),
+        (br#"{"dt": - NaN}"#, "invalid number at line 1 column 9"),
+        (
+            br#"{"dt": "NaN" NaN}"#,
+            "expected `,` or `}` at line 1 column 14",
+        ),
+        (br#"{NaN: 1}"#, "key must be a string at line 1 column 2"),
+        (br#"{"dt": nan}"#, "expected ident at line 1 column 9"),
+        (br#"{"dt": +Infinity}"#, "expected value at line 1 column 8"),
+        (br#"NaN"#, "expected value at line 1 column 1"),
+    ] {
+        let text = String::from_utf8_lossy(doc);
+        match parse(doc) {
+            Err(ParseError::Syntax(msg)) => assert_eq!(msg, message, "{text}"),
+            other => panic!("{text}: {other:?}"),
+        }
+    }
+}
+
 #[test]
 fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     let deep = |open: usize, close: usize| {

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import copy
 import dataclasses
+import json
 import pickle
 from typing import Any, Dict, List, Optional
 
@@ -131,6 +132,24 @@ def test_malformed_json(service: ServiceProcess) -> None:
     error = error_from_response(response)
     assert isinstance(error, MalformedRequestError)
     assert error.status == 400 and error.slug == "malformed-json"
+
+
+def test_a_bare_nan_from_json_dumps_is_a_422_at_its_pointer(service: ServiceProcess) -> None:
+    # json.dumps writes NaN and -Infinity, which JSON lacks (requests'
+    # json= refuses them); the service names the first one's field instead
+    # of a 400 for the body.
+    document = {"dt": 0.05, "weights": {"state": [1, 1, float("-inf"), 1, 1, 1]}, "horizon": float("nan")}
+    response = requests.post(
+        f"{service.url}/solve",
+        data=json.dumps(document),
+        headers={"Content-Type": "application/json"},
+        timeout=10,
+    )
+    error = error_from_response(response)
+    assert isinstance(error, ValidationError), response.text
+    assert error.status == 422 and error.slug == "validation"
+    assert error.pointers == ["/weights/state/2"]
+    assert error.errors[0].detail.startswith("got -Infinity, which is not JSON")
 
 
 def test_payload_too_large(client: Client) -> None:
