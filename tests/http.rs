@@ -260,6 +260,8 @@ async fn responses_are_gzipped_when_asked() {
         "gzip;q=0.001",
         "gzip, gzip;q=0", // the first of repeated codings counts
         "gzip ; Q=1.000",
+        "gzip;q=0.5, identity;q=0.5", // a tie goes to the smaller answer
+        "identity;q=0.2, *;q=0.3",
     ] {
         let (encoding, v) = answer(Some(accept)).await;
         assert_eq!(encoding.as_deref(), Some("gzip"), "{accept}");
@@ -280,6 +282,10 @@ async fn responses_are_gzipped_when_asked() {
         "*;Q=0.000",
         "identity;q=0",
         "identity;Q=0",
+        // Preferred uncompressed.
+        "gzip;q=0.5, identity",
+        "identity;q=1, gzip;q=0.999",
+        "*;q=0.5, IDENTITY",
     ] {
         let (encoding, v) = answer(Some(accept)).await;
         assert_eq!(encoding, None, "{accept}");

@@ -617,12 +617,13 @@ async fn solve(
 }
 
 /// Whether a request's `Accept-Encoding` admits gzip (RFC 9110 §12.5.3):
-/// named with a non-zero `q`, or not named while `*` has a non-zero `q`. An
-/// item whose `q` is not a valid qvalue (`0`–`1`, at most three decimals) is
-/// ignored, and the first of repeated codings counts, as in tower-http's own
-/// parser. (Identity needs no test: it is what everyone else gets.)
+/// named with a non-zero `q`, or not named while `*` has a non-zero `q`, and
+/// not below `identity`'s `q` where that is named (`gzip;q=0.5, identity`
+/// prefers the answer uncompressed; a tie goes to gzip). An item whose `q`
+/// is not a valid qvalue (`0`–`1`, at most three decimals) is ignored, and
+/// the first of repeated codings counts, as in tower-http's own parser.
 fn admits_gzip(headers: &HeaderMap) -> bool {
-    let (mut gzip, mut any) = (None, None);
+    let (mut gzip, mut any, mut identity) = (None, None, None);
     for value in headers.get_all(header::ACCEPT_ENCODING) {
         let Ok(value) = value.to_str() else { continue };
         for item in value.split(',') {
@@ -642,13 +643,16 @@ fn admits_gzip(headers: &HeaderMap) -> bool {
                     &mut gzip
                 } else if coding == "*" {
                     &mut any
+                } else if coding.eq_ignore_ascii_case("identity") {
+                    &mut identity
                 } else {
                     continue;
                 };
             slot.get_or_insert(q);
         }
     }
-    gzip.or(any).is_some_and(|q| q > 0.0)
+    gzip.or(any)
+        .is_some_and(|q| q > 0.0 && identity.is_none_or(|i| q >= i))
 }
 
 /// RFC 9110 §12.4.2: `0` to `1` with at most three decimals.
