@@ -615,7 +615,17 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
         r.initial_cost,
         r.goal_distance,
     );
-    for (j, (o, d)) in spec.obstacles.iter().zip(&r.closest_approach).enumerate() {
+    // Up to SHOWN obstacles: with more, the nearest SHOWN (in index
+    // order); the result's `closest_approach` has every one.
+    const SHOWN: usize = 10;
+    let mut nearest: Vec<usize> = (0..r.closest_approach.len()).collect();
+    nearest.sort_by(|&a, &b| r.closest_approach[a].total_cmp(&r.closest_approach[b]));
+    let mut shown: Vec<usize> = nearest.iter().copied().take(SHOWN).collect();
+    shown.sort_unstable();
+    for j in shown {
+        let (Some(o), Some(d)) = (spec.obstacles.get(j), r.closest_approach.get(j)) else {
+            continue;
+        };
         // Padded like the other labels, however many digits `j` has.
         s += &format!(
             "{:<17}closest approach {d:.4} m to ({}, {})\n",
@@ -624,13 +634,21 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
             o.center[1]
         );
     }
+    if let Some(&next) = nearest.get(SHOWN) {
+        s += &format!(
+            "{:<17}{} more, none nearer than {:.4} m (closest_approach in the result lists all)\n",
+            "",
+            nearest.len() - SHOWN,
+            r.closest_approach[next]
+        );
+    }
     if let Some(k) = r.convexified_after_iteration {
         s += &format!(
             "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20); {}\n",
-            if r.convex_model_at_end == Some(true) {
-                "the gains come from the convex model"
-            } else {
-                "the exact Hessian took over again"
+            match (r.convex_model_at_end == Some(true), r.gains.is_some()) {
+                (true, true) => "the gains come from the convex model",
+                (true, false) => "it ended on the convex model",
+                (false, _) => "the exact Hessian took over again",
             }
         );
     }

@@ -580,12 +580,15 @@ fn a_zero_model_reduction_is_written_as_zero_not_minus_zero() {
     assert!(!wire.contains("\"expected_reduction\":-0.0"), "{wire}");
 }
 
-/// The summary's values start in one column, obstacle 10 and on included.
+/// The summary's values start in one column, obstacle 10 and on included;
+/// past ten obstacles it lists the nearest ten, in index order, and counts
+/// the rest.
 #[test]
 fn the_summary_keeps_its_column_past_nine_obstacles() {
     let cancel = AtomicBool::new(false);
+    // Obstacle i at (4.5, 32 − i): the higher the index, the nearer.
     let obstacles: Vec<_> = (0..12)
-        .map(|i| json!({"center": [i, 20], "weight": 1}))
+        .map(|i| json!({"center": [4.5, 32 - i], "weight": 1}))
         .collect();
     let p = spec(json!({"obstacles": obstacles, "solver": {"max_iterations": 2}}));
     let r = solve(&p, None, &cancel).unwrap();
@@ -598,9 +601,21 @@ fn the_summary_keeps_its_column_past_nine_obstacles() {
         assert!(!line[17..].starts_with(' '), "{line}");
     }
     assert!(
+        text.contains("\nobstacle 2       closest approach"),
+        "{text}"
+    );
+    assert!(
         text.contains("\nobstacle 11      closest approach"),
         "{text}"
     );
+    assert!(!text.contains("obstacle 1 "), "{text}");
+    let more = format!(
+        "\n{:17}2 more, none nearer than {:.4} m",
+        "", r.closest_approach[1]
+    );
+    assert!(text.contains(&more), "{text}");
+    let listed: Vec<&str> = text.lines().filter(|l| l.starts_with("obstacle")).collect();
+    assert_eq!(listed.len(), 10, "{text}");
 }
 
 /// Ctrl-C during `solve` stops it like a cancelled request: the best
