@@ -73,7 +73,9 @@ pub struct ProblemSpec {
     #[schema(default = 100, minimum = 1, maximum = 10000)]
     pub horizon: usize,
     /// Initial state `[x, y, θ, ẋ, ẏ, θ̇]` in m, m, rad, m/s, m/s, rad/s.
-    /// Default `[5, 0, 0, 0, 0, 0]`.
+    /// Default `[5, 0, 0, 0, 0, 0]`. θ is not taken modulo 2π: the cost
+    /// compares it with the goal's as a number, so give it within π of the
+    /// goal's θ (2π would be flown as a full turn back).
     #[schema(schema_with = schema::initial_state)]
     pub initial_state: [f64; 6],
     /// Target state, same units. Default `[4, 9, 0, 0, 0, 0]`: the initial

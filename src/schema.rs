@@ -47,7 +47,9 @@ pub fn initial_state() -> Schema {
         MAX_STATE,
         &ProblemSpec::default().initial_state,
         "Initial state [x, y, θ, ẋ, ẏ, θ̇] in m, m, rad, m/s, m/s, rad/s, each of magnitude \
-         at most 1e6. Default [5, 0, 0, 0, 0, 0].",
+         at most 1e6. Default [5, 0, 0, 0, 0, 0]. θ is not taken modulo 2π: the cost \
+         compares it with the goal's as a number, so give it within π of the goal's θ \
+         (2π would be flown as a full turn back).",
     )
 }
 
