@@ -106,16 +106,23 @@ def main() -> int:
                         help="offset of the initial x [m], y [m] and θ [rad] (default: 0.3 -0.2 0.05)")
     args = parser.parse_args()
 
-    problem = json.loads(args.problem.read_text())
-    # The service's defaults, for problem files that omit these fields.
-    model = {"mass": 1.0, "inertia": 1.0, "arm_length": 1.0, "gravity": 9.81, **problem.get("model", {})}
-    dt = problem.get("dt", 0.05)
-    goal = problem.get("goal_state", [4.0, 9.0, 0.0, 0.0, 0.0, 0.0])
+    try:
+        problem = json.loads(args.problem.read_text(encoding="utf-8"))
+    except (OSError, UnicodeDecodeError, ValueError) as exc:
+        print(f"cannot read {args.problem}: {exc}", file=sys.stderr)
+        return 1
+    if not isinstance(problem, dict):
+        print(f"{args.problem}: expected a JSON object (a problem), got {type(problem).__name__}",
+              file=sys.stderr)
+        return 1
     # Gains are needed for the closed loop; the trace is not.
     problem["output"] = {"gains": True, "trace": False}
 
     with Client(args.url, timeout=(5.0, 70.0), retries=3) as client:
         try:
+            # The service's defaults, for the fields the file leaves out
+            # (the local simulation needs the model, dt and goal).
+            defaults = client.default_problem()
             result = client.solve(problem)
         except ValidationError as err:
             print(f"the service rejected {args.problem}:", file=sys.stderr)
@@ -132,6 +139,10 @@ def main() -> int:
         except requests.RequestException as exc:
             print(f"cannot reach {args.url}: {exc}", file=sys.stderr)
             return 1
+
+        model = {**defaults.model.to_dict(), **problem.get("model", {})}
+        dt = problem.get("dt", defaults.dt)
+        goal = problem.get("goal_state", defaults.goal_state)
 
         print(f"problem     {args.problem}")
         print(f"status      {result.status}")

@@ -52,7 +52,17 @@ show() {
 
 section "GET $ILQR_URL/healthz"
 if ! curl -sS --fail "$ILQR_URL/healthz" -o /dev/null; then
-    echo "no ilqr-service at $ILQR_URL (start one with: ilqr-service serve --bind 127.0.0.1:8080)" >&2
+    # The address to serve on: the URL's host and port (no path prefix).
+    # --bind takes an IP address, not a name: a named host becomes 127.0.0.1.
+    hostport="${ILQR_URL#*://}"
+    hostport="${hostport%%/*}"
+    case "$hostport" in
+        \[*\]:*) ;;
+        *:*) [[ "${hostport%:*}" =~ ^[0-9.]+$ ]] || hostport="127.0.0.1:${hostport##*:}" ;;
+        *) hostport="127.0.0.1:80" ;;
+    esac
+    echo "no ilqr-service at $ILQR_URL (start one from the repository with:" \
+        "cargo run --release -- serve --bind $hostport)" >&2
     exit 1
 fi
 echo "ok"

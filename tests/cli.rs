@@ -1057,3 +1057,16 @@ fn a_second_signal_ends_the_drain_at_once() {
     assert_eq!(status.code(), Some(143));
     drop(clients);
 }
+
+/// The image's version label is an `ARG` default in the Dockerfile (the
+/// build has no other way to know it); it must say what Cargo.toml says.
+#[test]
+fn the_dockerfile_labels_the_crate_version() {
+    let dockerfile = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/Dockerfile"))
+        .expect("Dockerfile");
+    let version = dockerfile
+        .lines()
+        .find_map(|l| l.trim().strip_prefix("ARG VERSION="))
+        .expect("an `ARG VERSION=` line");
+    assert_eq!(version, env!("CARGO_PKG_VERSION"));
+}
