@@ -22,12 +22,19 @@
 //! Not counted: the parse itself. [`crate::problem::parse`] builds a
 //! `serde_json::Value` of the document first, up to ~25 times the text for
 //! a body that is one long array of short numbers (a 4 MB body: 112 MB at
-//! its peak). It runs on the async runtime's threads, one at a time each
-//! (`--runtime-threads`, 1 by default), so that peak is bounded by their
-//! number rather than by the number of clients.
+//! its peak), and takes about 0.1 s for 4 MB. A body over
+//! [`INLINE_PARSE_BYTES`] is therefore parsed off the runtime's thread
+//! (`block_in_place`: the runtime moves its other tasks to another thread
+//! meanwhile), so a client sending megabytes does not stall every other
+//! connection, and one at a time ([`BodyBudget`]'s parse lane), so that
+//! peak is one parse's whatever the number of clients. Smaller bodies, a
+//! problem without `initial_controls` among them, parse in place.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Duration;
+
+use tokio::runtime::{Handle, RuntimeFlavor};
+use tokio::sync::Semaphore;
 
 use axum::extract::Request;
 use axum::http::header;
@@ -40,13 +47,22 @@ use super::error::{ApiError, Overload};
 pub(crate) struct BodyBudget {
     limit: usize,
     used: AtomicUsize,
+    /// One permit: the parse of a body over [`INLINE_PARSE_BYTES`].
+    parse_lane: Semaphore,
 }
+
+/// Bodies up to this size are parsed on the runtime's thread, in well under
+/// a millisecond; larger ones in the parse lane (see the module's doc).
+/// The largest valid problem, 10000 steps of `initial_controls`, is about
+/// 0.4 MB.
+pub(crate) const INLINE_PARSE_BYTES: usize = 64 * 1024;
 
 impl BodyBudget {
     pub(crate) fn new(limit: usize) -> Self {
         Self {
             limit,
             used: AtomicUsize::new(0),
+            parse_lane: Semaphore::new(1),
         }
     }
 
@@ -183,7 +199,17 @@ pub(crate) async fn read_with<T>(
     tokio::time::timeout(rules.timeout, read)
         .await
         .map_err(|_| ApiError::RequestTimeout(secs))??;
-    parse(&buf)
+    let multi_thread =
+        Handle::try_current().is_ok_and(|h| h.runtime_flavor() == RuntimeFlavor::MultiThread);
+    if buf.len() <= INLINE_PARSE_BYTES || !multi_thread {
+        // (A current-thread runtime, as in unit tests, cannot hand its
+        // tasks over: it parses in place.)
+        return parse(&buf);
+    }
+    // The lane is never closed, so this waits for its turn; its permit is
+    // returned when `_turn` drops, after the parse.
+    let _turn = rules.budget.parse_lane.acquire().await;
+    tokio::task::block_in_place(|| parse(&buf))
 }
 
 /// Whether a body's read error is the client closing its connection
