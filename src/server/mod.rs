@@ -12,8 +12,9 @@
 //!   knots inside its passes, and returns the best trajectory so far with
 //!   status `time_limit`. It runs from admission: a solve still queued when
 //!   it runs out is taken back from the queue and answered then, on a
-//!   blocking thread (a rollout of the initial guess, 0 iterations), not
-//!   when a worker gets to it behind longer solves.
+//!   blocking thread (a rollout of the initial guess, 0 iterations; at most
+//!   `workers` such runs at once), not when a worker gets to it behind
+//!   longer solves.
 //! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
 //!   polls with the budget. A guard owned by the request handler sets it when
 //!   the handler is dropped, which is what hyper does when the client
@@ -452,6 +453,9 @@ pub struct AppState {
     /// Bytes of the request bodies being read, against
     /// `--max-inflight-body-bytes`.
     bodies: body::BodyBudget,
+    /// Permits, one per worker, for running solves whose budget ran out
+    /// while queued (see `routes::solve`).
+    expired_lane: Arc<tokio::sync::Semaphore>,
     draining: AtomicBool,
     /// Cancellation flags of admitted solves, by admission number.
     inflight: Mutex<HashMap<u64, Arc<AtomicBool>>>,
@@ -470,6 +474,7 @@ impl AppState {
         let pool = Pool::new(config.workers(), config.queue_capacity)?;
         Ok(Arc::new(Self {
             bodies: body::BodyBudget::new(config.inflight_body_bytes()),
+            expired_lane: Arc::new(tokio::sync::Semaphore::new(config.workers())),
             config,
             pool,
             draining: AtomicBool::new(false),

@@ -208,16 +208,44 @@ impl<T> Ticket<T> {
     }
 
     /// Take the job out of the queue, if it is still waiting there, to run
-    /// it elsewhere: calling the returned closure does what a worker would
-    /// (its outcome arrives through [`Ticket::done`]). Until it has run the
-    /// job counts as running, so it keeps its slot.
-    pub fn claim(&self) -> Option<impl FnOnce() + Send + 'static> {
+    /// it elsewhere ([`Claimed::run`] does what a worker would; the outcome
+    /// arrives through [`Ticket::done`]). Until it has run the job counts
+    /// as running, so it keeps its slot.
+    pub fn claim(&self) -> Option<Claimed> {
         let mut st = self.shared.lock();
         let pos = st.queue.iter().position(|(id, _)| *id == self.id)?;
         let (_, job) = st.queue.remove(pos)?;
         // The job gives the slot back when it ends, as under a worker.
         st.running += 1;
-        Some(job)
+        Some(Claimed {
+            job: Some(job),
+            shared: Arc::clone(&self.shared),
+        })
+    }
+}
+
+/// A job taken back from the queue by [`Ticket::claim`]. Dropped without
+/// having run (its caller left first, or the thread meant for it never
+/// started), it gives its slot back, and [`Ticket::done`] returns `None`.
+pub struct Claimed {
+    job: Option<Job>,
+    shared: Arc<Shared>,
+}
+
+impl Claimed {
+    /// Run the job here, as a worker would (panics caught, slot returned).
+    pub fn run(mut self) {
+        if let Some(job) = self.job.take() {
+            job();
+        }
+    }
+}
+
+impl Drop for Claimed {
+    fn drop(&mut self) {
+        if self.job.is_some() {
+            self.shared.lock().running -= 1;
+        }
     }
 }
 
@@ -338,14 +366,14 @@ mod tests {
         let mut queued = pool
             .submit(|_| std::thread::current().name().map(str::to_owned))
             .unwrap();
-        let job = queued.claim().expect("still queued");
+        let claimed = queued.claim().expect("still queued");
         assert!(queued.claim().is_none(), "claimed once only");
         assert_eq!(pool.queue_depth(), 0);
         // Taken out of the queue but not yet run: its slot is still taken.
         assert!(matches!(pool.submit(|_| ()), Err(Full)));
         std::thread::Builder::new()
             .name("claimer".into())
-            .spawn(job)
+            .spawn(|| claimed.run())
             .unwrap()
             .join()
             .unwrap();
@@ -356,6 +384,21 @@ mod tests {
         release.send(()).unwrap();
         blocker.done().await.unwrap().outcome.unwrap();
         assert_eq!(next.done().await.unwrap().outcome, Ok(None));
+    }
+
+    #[tokio::test]
+    async fn a_claimed_job_dropped_unrun_gives_its_slot_back() {
+        let pool = Pool::new(1, 1).unwrap();
+        let (mut blocker, release) = block_a_worker(&pool);
+        let mut queued = pool.submit(|_| ()).unwrap();
+        let claimed = queued.claim().expect("still queued");
+        assert!(matches!(pool.submit(|_| ()), Err(Full)));
+        drop(claimed);
+        assert!(queued.done().await.is_none(), "no outcome: it never ran");
+        let mut next = pool.submit(|_| 5).unwrap();
+        release.send(()).unwrap();
+        blocker.done().await.unwrap().outcome.unwrap();
+        assert_eq!(next.done().await.unwrap().outcome, Ok(5));
     }
 
     #[tokio::test]

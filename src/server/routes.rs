@@ -566,7 +566,16 @@ async fn solve(
                     // initial guess, and it holds its pool slot meanwhile.
                     // Already taken by a worker, it stops at its budget.
                     if let Some(job) = waiting.0.claim() {
-                        drop(tokio::task::spawn_blocking(job));
+                        // At most `workers` such runs at once, like solves:
+                        // each takes a solve's memory (at N = 10000, 300 at
+                        // once took 1.1 GB in a review before this bound).
+                        // A client that leaves meanwhile drops `job`, which
+                        // gives its slot back unrun.
+                        let turn = Arc::clone(&st.expired_lane).acquire_owned().await;
+                        drop(tokio::task::spawn_blocking(move || {
+                            let _turn = turn;
+                            job.run();
+                        }));
                     }
                     waiting.0.done().await
                 }
