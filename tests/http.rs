@@ -286,6 +286,7 @@ async fn responses_are_gzipped_when_asked() {
         "gzip;q=0.5, identity",
         "identity;q=1, gzip;q=0.999",
         "*;q=0.5, IDENTITY",
+        "gzip;q=0.5, *",
     ] {
         let (encoding, v) = answer(Some(accept)).await;
         assert_eq!(encoding, None, "{accept}");

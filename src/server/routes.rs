@@ -627,8 +627,9 @@ async fn solve(
 
 /// Whether a request's `Accept-Encoding` admits gzip (RFC 9110 §12.5.3):
 /// named with a non-zero `q`, or not named while `*` has a non-zero `q`, and
-/// not below `identity`'s `q` where that is named (`gzip;q=0.5, identity`
-/// prefers the answer uncompressed; a tie goes to gzip). An item whose `q`
+/// not below `identity`'s `q` where that is named or `*` gives one
+/// (`gzip;q=0.5, identity` and `gzip;q=0.5, *` prefer the answer
+/// uncompressed; a tie goes to gzip). An item whose `q`
 /// is not a valid qvalue (`0`–`1`, at most three decimals) is ignored, and
 /// the first of repeated codings counts, as in tower-http's own parser.
 fn admits_gzip(headers: &HeaderMap) -> bool {
@@ -660,8 +661,9 @@ fn admits_gzip(headers: &HeaderMap) -> bool {
             slot.get_or_insert(q);
         }
     }
+    // Identity not named takes `*`'s q (RFC 9110 §12.5.3).
     gzip.or(any)
-        .is_some_and(|q| q > 0.0 && identity.is_none_or(|i| q >= i))
+        .is_some_and(|q| q > 0.0 && identity.or(any).is_none_or(|i| q >= i))
 }
 
 /// RFC 9110 §12.4.2: `0` to `1` with at most three decimals.
