@@ -280,6 +280,46 @@ mod tests {
         }
     }
 
+    /// Bodies over INLINE_PARSE_BYTES are parsed one at a time, off the
+    /// runtime's thread; smaller ones in place, side by side.
+    #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+    async fn large_bodies_are_parsed_one_at_a_time() {
+        use std::sync::Arc;
+        let budget = Arc::new(BodyBudget::new(16 * INLINE_PARSE_BYTES));
+        let (now, most) = (Arc::new(AtomicUsize::new(0)), Arc::new(AtomicUsize::new(0)));
+        let parses = |size: usize| {
+            (0..3)
+                .map(|_| {
+                    let (budget, now, most) = (budget.clone(), now.clone(), most.clone());
+                    tokio::spawn(async move {
+                        let rules = BodyRules {
+                            limit: 4 * INLINE_PARSE_BYTES,
+                            ..rules(&budget)
+                        };
+                        let req = Request::new(Body::from(vec![b' '; size]));
+                        read_with(req, &rules, |b| {
+                            let inside = now.fetch_add(1, Ordering::SeqCst) + 1;
+                            most.fetch_max(inside, Ordering::SeqCst);
+                            std::thread::sleep(Duration::from_millis(100));
+                            now.fetch_sub(1, Ordering::SeqCst);
+                            Ok(b.len())
+                        })
+                        .await
+                    })
+                })
+                .collect::<Vec<_>>()
+        };
+        for task in parses(INLINE_PARSE_BYTES + 1) {
+            assert_eq!(task.await.unwrap(), Ok(INLINE_PARSE_BYTES + 1));
+        }
+        assert_eq!(most.load(Ordering::SeqCst), 1, "one large parse at a time");
+        for task in parses(INLINE_PARSE_BYTES) {
+            assert_eq!(task.await.unwrap(), Ok(INLINE_PARSE_BYTES));
+        }
+        // Two runtime threads: small parses overlap, in place.
+        assert_eq!(most.load(Ordering::SeqCst), 2);
+    }
+
     /// What a body holds is returned however its read ends, and a body
     /// that does not fit beside the others is refused as overload.
     #[tokio::test]
