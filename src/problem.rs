@@ -1150,7 +1150,8 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
     // pointer, if it is the document's only
     // departure from the grammar. Masked with a number of the same length,
     // so a real syntax error elsewhere keeps its line and column.
-    let masked = mask_non_finite(bytes);
+    let spans = non_finite_spans(bytes);
+    let masked = (!spans.is_empty()).then(|| replace_spans(bytes, &spans, b"0"));
     if let Err(syntax) =
         serde_json::from_slice::<serde::de::IgnoredAny>(masked.as_deref().unwrap_or(bytes))
     {
@@ -1188,13 +1189,35 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         // The grammar holds once the tokens are masked, so reading stopped
         // at the first of them.
         let token = non_finite_at(bytes, e.line(), e.column()).unwrap_or("NaN or Infinity");
-        let expected = count_expected(path, None).unwrap_or("a finite number".into());
+        let what = "which is not JSON (Python's json.dumps writes it for a non-finite float)";
+        // What the place takes: what a null there is told, the nulled
+        // document being JSON (and free of these tokens, so this parses
+        // once more at most).
+        let told = match parse(&replace_spans(bytes, &spans, b"null")) {
+            Err(ParseError::Shape(s)) => s
+                .checker
+                .found
+                .errors
+                .into_iter()
+                .find(|f| f.pointer == path)
+                .map(|f| f.detail),
+            _ => None,
+        };
+        let detail = match (count_expected(path, None), told) {
+            (Some(expected), _) => format!("got {token}, {what}: expected {expected}"),
+            (None, Some(told)) => match told.strip_prefix("invalid type: null, ") {
+                Some("expected a number") => {
+                    format!("got {token}, {what}: expected a finite number")
+                }
+                Some(expected) => format!("got {token}, {what}: {expected}"),
+                None => format!("got {token}, {what}; and {told}"),
+            },
+            // A null is taken there (an optional member): a number is too.
+            (None, None) => format!("got {token}, {what}: expected a finite number"),
+        };
         return ParseError::Shape(Shapes::one(FieldError {
             pointer: path.to_owned(),
-            detail: format!(
-                "got {token}, which is not JSON (Python's json.dumps writes it for a \
-                 non-finite float): expected {expected}"
-            ),
+            detail,
         }));
     } else if message.starts_with("recursion limit exceeded") {
         // The path is over a hundred levels deep by now; point at the
@@ -1231,14 +1254,14 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
 /// where one starts another.
 const NON_FINITE: [&[u8]; 2] = [b"NaN", b"Infinity"];
 
-/// A copy of `bytes` with every bare `NaN` or `Infinity` (optionally after
-/// `-`) in a value's place, outside strings, replaced by a `0` and spaces;
-/// `None` if there is none. In a value's place: after `:`, `[` or `,` and
-/// whitespace, so `1NaN` stays the syntax error it is.
-fn mask_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
-    let mut out: Option<Vec<u8>> = None;
+/// Where `bytes` has a bare `NaN` or `Infinity` (with a `-` straight
+/// before it, included) in a value's place, outside strings: after `:`, `[`
+/// or `,` and whitespace, so `1NaN` stays the syntax error it is.
+fn non_finite_spans(bytes: &[u8]) -> Vec<std::ops::Range<usize>> {
+    let mut spans = Vec::new();
     let (mut i, mut in_string, mut after) = (0, false, b'\0');
     while let Some(&b) = bytes.get(i) {
+        let signed = after == b'-' && i > 0 && bytes[i - 1] == b'-';
         if in_string {
             match b {
                 b'\\' => i += 1,
@@ -1247,15 +1270,13 @@ fn mask_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
             }
         } else if b == b'"' {
             in_string = true;
-        } else if matches!(after, b':' | b'[' | b',' | b'-')
+        } else if (signed || matches!(after, b':' | b'[' | b','))
             && let Some(len) = NON_FINITE
                 .iter()
                 .find(|t| bytes[i..].starts_with(t))
                 .map(|t| t.len())
         {
-            let out = out.get_or_insert_with(|| bytes.to_vec());
-            out[i] = b'0';
-            out[i + 1..i + len].fill(b' ');
+            spans.push(if signed { i - 1 } else { i }..i + len);
             i += len;
             after = b'0';
             continue;
@@ -1270,6 +1291,22 @@ fn mask_non_finite(bytes: &[u8]) -> Option<Vec<u8>> {
         }
         i += 1;
     }
+    spans
+}
+
+/// `bytes` with each of `spans` replaced by `with`, the rest of the span
+/// filled with spaces when `with` is shorter (so every position after it
+/// stays where it was) and grown when longer.
+fn replace_spans(bytes: &[u8], spans: &[std::ops::Range<usize>], with: &[u8]) -> Vec<u8> {
+    let mut out = Vec::with_capacity(bytes.len() + spans.len() * with.len());
+    let mut from = 0;
+    for span in spans {
+        out.extend_from_slice(&bytes[from..span.start]);
+        out.extend_from_slice(with);
+        out.resize(out.len() + span.len().saturating_sub(with.len()), b' ');
+        from = span.end;
+    }
+    out.extend_from_slice(&bytes[from..]);
     out
 }
 

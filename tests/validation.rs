@@ -168,6 +168,15 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
             "/horizon",
             "got NaN,",
         ),
+        // Where no number goes, what does.
+        (br#"{"model": NaN}"#, "/model", "got NaN,"),
+        (
+            br#"{"output": {"gains": -Infinity}}"#,
+            "/output/gains",
+            "got -Infinity,",
+        ),
+        (br#"{"foo": NaN}"#, "/foo", "got NaN,"),
+        (br#"{"obstacles": [NaN]}"#, "/obstacles/0", "got NaN,"),
     ] {
         let text = String::from_utf8_lossy(doc);
         match parse(doc) {
@@ -175,10 +184,17 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
                 let f = s.first().clone();
                 assert_eq!(f.pointer, pointer, "{text}");
                 assert!(f.detail.starts_with(token), "{text}: {}", f.detail);
-                let expected = if pointer == "/horizon" {
-                    "expected an integer from 1 to the maximum horizon"
-                } else {
-                    "expected a finite number"
+                assert!(
+                    f.detail.contains("which is not JSON"),
+                    "{text}: {}",
+                    f.detail
+                );
+                let expected = match pointer {
+                    "/horizon" => ": expected an integer from 1 to the maximum horizon",
+                    "/model" | "/obstacles/0" => ": expected a JSON object",
+                    "/output/gains" => ": expected a boolean",
+                    "/foo" => "; and unknown field `foo`, expected one of `model`",
+                    _ => ": expected a finite number",
                 };
                 assert!(f.detail.contains(expected), "{text}: {}", f.detail);
             }
