@@ -56,10 +56,14 @@ if ! curl -sS --fail "$ILQR_URL/healthz" -o /dev/null; then
     # --bind takes an IP address, not a name: a named host becomes 127.0.0.1.
     hostport="${ILQR_URL#*://}"
     hostport="${hostport%%/*}"
+    default_port=80
+    [[ "$ILQR_URL" == https://* ]] && default_port=443
     case "$hostport" in
         \[*\]:*) ;;
+        \[*\]) hostport="$hostport:$default_port" ;;
         *:*) [[ "${hostport%:*}" =~ ^[0-9.]+$ ]] || hostport="127.0.0.1:${hostport##*:}" ;;
-        *) hostport="127.0.0.1:80" ;;
+        *) [[ "$hostport" =~ ^[0-9.]+$ ]] || hostport=127.0.0.1
+           hostport="$hostport:$default_port" ;;
     esac
     echo "no ilqr-service at $ILQR_URL (start one from the repository with:" \
         "cargo run --release -- serve --bind $hostport)" >&2
