@@ -199,8 +199,9 @@ pub struct SolverSpec {
     /// `time_limit` and returns the best trajectory so far. The service
     /// counts it from admission, so time spent waiting for a worker is part
     /// of it; a solve still waiting when it runs out is answered then, with
-    /// 0 iterations and the initial guess. It is checked every iteration and every 128 knots inside the
-    /// linearisation, backward pass and rollouts: at N = 10000, budgets that
+    /// 0 iterations and the initial guess. It is checked every iteration and
+    /// every 128 knots inside the linearisation, backward pass and
+    /// rollouts: at N = 10000, budgets that
     /// fell after the initial rollout were overrun by a median of 0.00–0.85
     /// ms, with 1 or 100 obstacles (measured). The initial rollout always
     /// completes, since without it there is no trajectory to return: 5–11
@@ -1147,9 +1148,9 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
     }
     // A bare NaN or Infinity is not JSON, but it is what Python's
     // `json.dumps` writes for a float that is one: a bad value at its
-    // pointer, if it is the document's only
-    // departure from the grammar. Masked with a number of the same length,
-    // so a real syntax error elsewhere keeps its line and column.
+    // pointer, if it is the document's only departure from the grammar.
+    // Masked with a number of the same length, so a real syntax error
+    // elsewhere keeps its line and column.
     let spans = non_finite_spans(bytes);
     let masked = (!spans.is_empty()).then(|| replace_spans(bytes, &spans, b"0"));
     if let Err(syntax) =
@@ -1188,7 +1189,7 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
     {
         // The grammar holds once the tokens are masked, so reading stopped
         // at the first of them.
-        let token = non_finite_at(bytes, e.line(), e.column()).unwrap_or("NaN or Infinity");
+        let token = String::from_utf8_lossy(&bytes[spans[0].clone()]);
         let what = "which is not JSON (Python's json.dumps writes it for a non-finite float)";
         // What the place takes: what a null there is told, the nulled
         // document being JSON (and free of these tokens, so this parses
@@ -1308,38 +1309,6 @@ fn replace_spans(bytes: &[u8], spans: &[std::ops::Range<usize>], with: &[u8]) ->
     }
     out.extend_from_slice(&bytes[from..]);
     out
-}
-
-/// The non-finite token at serde_json's one-based `line` and `column`
-/// (bytes), with its sign.
-fn non_finite_at(bytes: &[u8], line: usize, column: usize) -> Option<&'static str> {
-    let start = if line <= 1 {
-        0
-    } else {
-        bytes
-            .iter()
-            .enumerate()
-            .filter(|(_, b)| **b == b'\n')
-            .nth(line - 2)?
-            .0
-            + 1
-    };
-    let at = start + column.checked_sub(1)?;
-    let negative = at > 0 && bytes.get(at - 1) == Some(&b'-');
-    let rest = bytes.get(at..)?;
-    Some(
-        match (
-            rest.starts_with(b"NaN"),
-            rest.starts_with(b"Infinity"),
-            negative,
-        ) {
-            (true, _, false) => "NaN",
-            (true, _, true) => "-NaN",
-            (_, true, false) => "Infinity",
-            (_, true, true) => "-Infinity",
-            _ => return None,
-        },
-    )
 }
 
 /// Reads a JSON document into a `serde_json::Value`, as `from_slice` does,
