@@ -549,37 +549,34 @@ async fn solve(
         })?;
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     let mut waiting = Waiting(ticket, tracing::Span::current());
-    let done = match deadline {
-        None => waiting.0.done().await,
-        Some(deadline) => {
-            let expired = tokio::select! {
-                done = waiting.0.done() => Err(done),
-                () = tokio::time::sleep_until(deadline) => Ok(()),
-            };
-            match expired {
-                Err(done) => done,
-                Ok(()) => {
-                    // The budget ran out while the solve waited for a
-                    // worker: answer now, not when a worker gets to it
-                    // (seconds later behind long solves). A blocking thread
-                    // runs it; with no budget left it only rolls out the
-                    // initial guess, and it holds its pool slot meanwhile.
-                    // Already taken by a worker, it stops at its budget.
-                    if let Some(job) = waiting.0.claim() {
-                        // At most `workers` such runs at once, like solves:
-                        // each takes a solve's memory (at N = 10000, 300 at
-                        // once took 1.1 GB in a review before this bound).
-                        // A client that leaves meanwhile drops `job`, which
-                        // gives its slot back unrun.
-                        let turn = Arc::clone(&st.expired_lane).acquire_owned().await;
-                        drop(tokio::task::spawn_blocking(move || {
-                            let _turn = turn;
-                            job.run();
-                        }));
-                    }
-                    waiting.0.done().await
-                }
+    let expiry = async {
+        match deadline {
+            Some(deadline) => tokio::time::sleep_until(deadline).await,
+            None => std::future::pending().await, // a budget past Instant's range
+        }
+    };
+    let done = tokio::select! {
+        done = waiting.0.done() => done,
+        () = expiry => {
+            // The budget ran out while the solve waited for a worker:
+            // answer now, not when a worker gets to it (seconds later
+            // behind long solves). A blocking thread runs it; with no
+            // budget left it only rolls out the initial guess, and it holds
+            // its pool slot meanwhile. Already taken by a worker, it stops
+            // at its budget.
+            if let Some(job) = waiting.0.claim() {
+                // At most `workers` such runs at once, like solves: each
+                // takes a solve's memory (at N = 10000, 300 at once took
+                // 1.1 GB in a review before this bound). A client that
+                // leaves meanwhile drops `job`, which gives its slot back
+                // unrun.
+                let turn = Arc::clone(&st.expired_lane).acquire_owned().await;
+                drop(tokio::task::spawn_blocking(move || {
+                    let _turn = turn;
+                    job.run();
+                }));
             }
+            waiting.0.done().await
         }
     };
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
@@ -629,9 +626,9 @@ async fn solve(
 /// named with a non-zero `q`, or not named while `*` has a non-zero `q`, and
 /// not below `identity`'s `q` where that is named or `*` gives one
 /// (`gzip;q=0.5, identity` and `gzip;q=0.5, *` prefer the answer
-/// uncompressed; a tie goes to gzip). An item whose `q`
-/// is not a valid qvalue (`0`–`1`, at most three decimals) is ignored, and
-/// the first of repeated codings counts, as in tower-http's own parser.
+/// uncompressed; a tie goes to gzip). An item whose `q` is not a valid
+/// qvalue (`0`–`1`, at most three decimals) is ignored, and the first of
+/// repeated codings counts, as in tower-http's own parser.
 fn admits_gzip(headers: &HeaderMap) -> bool {
     let (mut gzip, mut any, mut identity) = (None, None, None);
     for value in headers.get_all(header::ACCEPT_ENCODING) {
