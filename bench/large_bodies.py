@@ -16,23 +16,15 @@ Needs `requests` (the repository's .venv has it).
 """
 
 import argparse
-import socket
 import statistics
-import subprocess
 import threading
 import time
-from pathlib import Path
 
 import requests
+from _serve import serving, vmhwm_mib
 
 BODY = ('{"foo":[' + ",".join(["0"] * 1_900_000) + "]}").encode()
 LEAN = {"output": {"gains": False, "trace": False}}
-
-
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
 
 
 def percentile(xs, p):
@@ -40,20 +32,7 @@ def percentile(xs, p):
 
 
 def round_of(binary: str, seconds: float) -> str:
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    server = subprocess.Popen(
-        [binary, "serve", "--bind", f"127.0.0.1:{port}", "--workers", "2"],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        for _ in range(100):
-            try:
-                requests.get(url + "/healthz", timeout=1)
-                break
-            except requests.ConnectionError:
-                time.sleep(0.05)
+    with serving(binary, "--workers", "2") as (url, pid):
         stop = time.time() + seconds
         big = []
 
@@ -80,14 +59,7 @@ def round_of(binary: str, seconds: float) -> str:
                 time.sleep(0.02)
         for t in senders:
             t.join()
-        hwm = next(
-            line.split()[1]
-            for line in Path(f"/proc/{server.pid}/status").read_text().splitlines()
-            if line.startswith("VmHWM")
-        )
-    finally:
-        server.terminate()
-        server.wait()
+        hwm = vmhwm_mib(pid)
     statuses = sorted({c for c, _ in big})
     return (
         f"{len(big)} large bodies answered {statuses}, median "
@@ -95,7 +67,7 @@ def round_of(binary: str, seconds: float) -> str:
         f"/healthz n={len(health)} p50 {percentile(health, .5):.1f} p90 {percentile(health, .9):.1f} "
         f"max {max(health) * 1e3:.1f} ms | "
         f"seed solve p50 {percentile(solve, .5):.1f} p90 {percentile(solve, .9):.1f} "
-        f"max {max(solve) * 1e3:.1f} ms | VmHWM {int(hwm) / 1024:.0f} MiB"
+        f"max {max(solve) * 1e3:.1f} ms | VmHWM {hwm:.0f} MiB"
     )
 
 

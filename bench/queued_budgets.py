@@ -14,13 +14,11 @@ Needs `requests` (the repository's .venv has it).
 """
 
 import argparse
-import socket
-import subprocess
 import threading
 import time
-from pathlib import Path
 
 import requests
+from _serve import serving, vmhwm_mib
 
 
 def slow(ms: int, full: bool) -> dict:
@@ -33,27 +31,8 @@ def slow(ms: int, full: bool) -> dict:
     }
 
 
-def free_port() -> int:
-    with socket.socket() as s:
-        s.bind(("127.0.0.1", 0))
-        return s.getsockname()[1]
-
-
 def run(binary: str, queue: int) -> str:
-    port = free_port()
-    url = f"http://127.0.0.1:{port}"
-    server = subprocess.Popen(
-        [binary, "serve", "--bind", f"127.0.0.1:{port}", "--workers", "1", "--queue-capacity", str(queue)],
-        stdout=subprocess.DEVNULL,
-        stderr=subprocess.DEVNULL,
-    )
-    try:
-        for _ in range(100):
-            try:
-                requests.get(url + "/healthz", timeout=1)
-                break
-            except requests.ConnectionError:
-                time.sleep(0.05)
+    with serving(binary, "--workers", "1", "--queue-capacity", str(queue)) as (url, pid):
         busy = threading.Thread(target=lambda: requests.post(url + "/solve", json=slow(6000, False)))
         busy.start()
         time.sleep(0.3)
@@ -70,15 +49,8 @@ def run(binary: str, queue: int) -> str:
             c.join()
         took = time.perf_counter() - start
         busy.join()
-        hwm = next(
-            line.split()[1]
-            for line in Path(f"/proc/{server.pid}/status").read_text().splitlines()
-            if line.startswith("VmHWM")
-        )
-    finally:
-        server.terminate()
-        server.wait()
-    return f"{queue} expired: statuses {sorted(set(answers))}, the last answered after {took:.2f} s; VmHWM {int(hwm) / 1024:.0f} MiB"
+        hwm = vmhwm_mib(pid)
+    return f"{queue} expired: statuses {sorted(set(answers))}, the last answered after {took:.2f} s; VmHWM {hwm:.0f} MiB"
 
 
 def main() -> None:
