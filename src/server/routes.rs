@@ -118,6 +118,47 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
             Type::String,
         ),
     );
+    with_request_id_header(spec)
+}
+
+/// Declares `x-request-id` on every response of every operation, since the
+/// middleware sets it on all of them: a generated client can then read it
+/// without knowing it from the prose. Not on 431, which the HTTP layer
+/// answers before any middleware runs (nor on its framing 400s, which
+/// share the 400 entry with ours). Responses given by reference (none
+/// today) are left alone.
+fn with_request_id_header(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
+    use utoipa::openapi::RefOr;
+    use utoipa::openapi::header::HeaderBuilder;
+    let header = HeaderBuilder::new()
+        .description(Some(
+            "The request's id, for finding it in the logs: the client's own \
+             `x-request-id` if it sent one, otherwise a new UUID",
+        ))
+        .build();
+    for item in spec.paths.paths.values_mut() {
+        for operation in [
+            &mut item.get,
+            &mut item.put,
+            &mut item.post,
+            &mut item.delete,
+            &mut item.options,
+            &mut item.head,
+            &mut item.patch,
+            &mut item.trace,
+        ]
+        .into_iter()
+        .flatten()
+        {
+            for (status, response) in &mut operation.responses.responses {
+                if let (false, RefOr::T(response)) = (status == "431", response) {
+                    response
+                        .headers
+                        .insert("x-request-id".into(), header.clone().into());
+                }
+            }
+        }
+    }
     spec
 }
 
