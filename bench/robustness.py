@@ -63,6 +63,10 @@ lower; 4 run on to the cap at costs 1.2e-9 to 7.2e-5 lower (problems 5,
 127, 243, 267: 127 is the false convergence above); none ends higher;
 iterations 37537 -> 38945. Converged with a last mu above 1: 8 (37, 83,
 118, 177, 205, 219, 244, 268).
+
+Measured 2026-11-24 after a rejected step of the pass at mu = 0 stopped
+resetting mu to mu_min: the same 256 / 44 / 0, the same 8 converged above
+mu = 1 with the same iteration counts, the same two convex fallbacks.
 """
 
 import collections

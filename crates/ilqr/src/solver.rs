@@ -554,6 +554,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // iterate and expansion: the least regularised gains about it, since
         // μ only grows between accepted steps.
         let mut iterate_mu = None;
+        // The pass at μ = 0 below, when its step failed: the μ it replaced
+        // (restored, then raised, after the failed line search), and
+        // whether it failed at the current iterate (the derivatives are the
+        // same until a step is accepted, so it would fail again).
+        let mut mu_before_probe = None;
+        let mut probe_failed = false;
         let mut convexified_after = None;
         let mut model = Model::Exact;
         // Whether a step was accepted since the last change of `model`.
@@ -584,6 +590,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 }
                 stale = false;
                 iterate_mu = None;
+                probe_failed = false;
             }
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
@@ -667,10 +674,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // μ above μ_min, its line searches then failed on round-off,
                 // and it ended `NoProgress` at a solution converged to 1e-16
                 // (`dt = 10`, no obstacles).
-                if negligible(&bw) && mu > options.mu_min {
+                if negligible(&bw) && mu > options.mu_min && !probe_failed {
                     match self.backward(0.0, &interrupted) {
                         Ok(unregularised) => {
                             bw = unregularised;
+                            mu_before_probe = Some(mu);
                             mu = 0.0;
                             gains_mu = 0.0;
                             gains_convex = model == Model::Convex;
@@ -775,6 +783,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             }
             if accepted {
                 stale = true;
+                mu_before_probe = None;
                 // The gains describe the previous iterate until the next
                 // backward pass completes.
                 gains_current = false;
@@ -785,6 +794,17 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // rising μ would shrink the model's prediction until it
                 // agreed.
                 converged = false;
+                // A failed step of the pass at μ = 0 is no reason to restart
+                // the schedule from μ_min: the damped model it replaced
+                // still stands, so μ goes on up from where it was. Without
+                // this, each retry at μ_min repeated the negligible
+                // prediction, the pass at μ = 0 and its failed step, and μ
+                // never rose: mass 1e6 from zero thrust ran 250 iterations
+                // without an accepted step, at μ alternating 0 and 1e-6.
+                if let Some(before) = mu_before_probe.take() {
+                    mu = before;
+                    probe_failed = true;
+                }
                 increase(&mut mu, &mut delta, options);
             }
             row.elapsed = start.elapsed();

@@ -965,3 +965,53 @@ fn a_rollout_with_a_non_finite_state_is_rejected_even_at_finite_cost() {
     let u = solver.controls()[0][0];
     assert!(u > 2.0 && u <= 5.0, "{s:?}: u = {u}");
 }
+
+/// The pass at μ = 0 (taken when the damped model predicts a negligible
+/// gain) may propose a step the line search rejects. Then μ must go on up
+/// from where it was, not restart from μ_min: a review's problem (mass 1e6,
+/// g = 1e4, from zero thrust) alternated μ between 0 and 1e-6 on every
+/// rejected step, accepted nothing after iteration 89, and reported that
+/// the exact Hessian had failed "up to μ = 1e20" when it had tried 1e4.
+#[test]
+fn a_failed_step_at_mu_zero_does_not_reset_the_regularisation() {
+    let mut problem = seed_problem(100, 0.05);
+    problem.dynamics.model.mass = 1e6;
+    problem.dynamics.model.gravity = 1e4;
+    let options = Options {
+        max_iterations: 300,
+        ..Options::default()
+    };
+    let (solver, s) = solve_from(&problem, &[Vector2::zeros(); 100], &options);
+    let trace = solver.trace();
+    // Between two accepted steps, the damped passes' μ only rises (a row at
+    // μ = 0 is the undamped pass, tried at most once per iterate).
+    let mut last_damped = None;
+    let mut undamped_at_this_iterate = 0;
+    for row in trace {
+        if row.regularization == 0.0 {
+            undamped_at_this_iterate += 1;
+            assert!(
+                undamped_at_this_iterate <= 1 || row.step_size > 0.0,
+                "iteration {}: the failed pass at μ = 0 was repeated",
+                row.iteration
+            );
+        } else if let Some(previous) = last_damped {
+            assert!(
+                row.regularization > previous,
+                "iteration {}: μ fell from {previous} to {} with no step accepted",
+                row.iteration,
+                row.regularization
+            );
+        }
+        if row.step_size > 0.0 {
+            (last_damped, undamped_at_this_iterate) = (None, 0);
+        } else if row.regularization > 0.0 {
+            last_damped = Some(row.regularization);
+        }
+    }
+    // And the solve keeps moving to the end instead of stalling.
+    let late = trace
+        .iter()
+        .filter(|r| r.iteration > 200 && r.step_size > 0.0);
+    assert!(late.count() > 10, "{s:?}");
+}
