@@ -35,8 +35,13 @@ pub const MAX_OBSTACLES: usize = 100;
 /// and thrusts ≤ [`MAX_CONTROL`], no rollout of up to 10000 steps can
 /// overflow an f64, so every valid problem has a finite initial cost.
 pub const MAX_STATE: f64 = 1e6;
-/// Largest magnitude of an initial-guess thrust, N.
-pub const MAX_CONTROL: f64 = 1e6;
+/// Largest magnitude of an initial-guess thrust, N. Far above any thrust a
+/// valid problem needs (hover at the largest mass and gravity is 5e9 N), so
+/// a result's `controls` can be posted back as `initial_controls`: at 1e6 a
+/// start 1e6 m from the goal, or a 3e5 kg vehicle, returned thrusts the
+/// service then refused. Even at 1e12 N on the lightest vehicle, the
+/// rollout's largest terms stay below 1e90.
+pub const MAX_CONTROL: f64 = 1e12;
 /// Largest cost weight.
 pub const MAX_WEIGHT: f64 = 1e12;
 /// Smallest mass (kg), inertia (kg·m²) and arm length (m).
@@ -1445,7 +1450,7 @@ fn pointer_of(path: &serde_path_to_error::Path) -> String {
 /// `1000000`), in exponent form otherwise (`1e300`, `1e-9`), so that a huge
 /// or tiny value never turns into hundreds of digits.
 fn num(x: f64) -> String {
-    if x == 0.0 || (1e-4..1e15).contains(&x.abs()) || !x.is_finite() {
+    if x == 0.0 || (1e-4..1e7).contains(&x.abs()) || !x.is_finite() {
         format!("{x}")
     } else {
         format!("{x:e}")

@@ -95,16 +95,26 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
     // Every number of the answer survives JSON both ways: parsed back by the
     // same parser the service uses, the controls roll out to the same states
     // and so to the same cost, bit for bit.
+    // The second problem's thrusts pass 1e6 N, the bound on
+    // `initial_controls` once, which refused them.
     let cancel = AtomicBool::new(false);
-    let first = solve(&spec(json!({})), None, &cancel).unwrap();
-    let wire: serde_json::Value = serde_json::from_slice(&first.to_json().unwrap()).unwrap();
-    let warm = spec(json!({
-        "initial_controls": wire["controls"],
-        "solver": {"max_iterations": 1},
-    }));
-    let again = solve(&warm, None, &cancel).unwrap();
-    assert_eq!(again.initial_cost.to_bits(), first.cost.to_bits());
-    assert!(again.cost <= first.cost);
+    let heavy = json!({"model": {"mass": 3e5}, "weights": {"control": [1e-9, 1e-9]}});
+    for (problem, thrusts_above) in [(json!({}), 0.0), (heavy, 1e6)] {
+        let first = solve(&spec(problem.clone()), None, &cancel).unwrap();
+        let largest = first
+            .controls
+            .iter()
+            .flatten()
+            .fold(0.0f64, |m, u| m.max(u.abs()));
+        assert!(largest > thrusts_above, "{largest}");
+        let wire: serde_json::Value = serde_json::from_slice(&first.to_json().unwrap()).unwrap();
+        let mut warm = problem;
+        warm["initial_controls"] = wire["controls"].clone();
+        warm["solver"] = json!({"max_iterations": 1});
+        let again = solve(&spec(warm), None, &cancel).unwrap();
+        assert_eq!(again.initial_cost.to_bits(), first.cost.to_bits());
+        assert!(again.cost <= first.cost);
+    }
 }
 
 /// A solve whose first backward pass never completes has no policy: one
@@ -218,7 +228,7 @@ fn the_cli_writes_clean_json_to_stdout_with_output_dash() {
     );
 
     // Past the 100 listed errors, one line counts the rest.
-    let rows = vec!["[1e7, 1e7]"; 5000].join(",");
+    let rows = vec!["[1e13, 1e13]"; 5000].join(",");
     let flood = run(&format!(
         r#"{{"horizon": 5000, "initial_controls": [{rows}]}}"#
     ));

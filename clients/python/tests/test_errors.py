@@ -71,7 +71,7 @@ def test_validation_errors(client: Client, problem: Any, pointers: List[str]) ->
 
 
 def test_a_flood_of_invalid_values_lists_100_and_counts_the_rest(client: Client) -> None:
-    rows = [[1e7, 1e7]] * 5000  # finite, so the client sends them; the service refuses
+    rows = [[1e13, 1e13]] * 5000  # finite, so the client sends them; the service refuses
     with pytest.raises(ValidationError) as info:
         client.solve({"horizon": 5000, "initial_controls": rows})
     error = info.value

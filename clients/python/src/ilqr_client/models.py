@@ -412,7 +412,7 @@ class Problem:
         weights: Diagonal cost weights.
         obstacles: Soft obstacles (at most 100); ``[]`` means none, ``None``
             the service default (one at (4.5, 4.5) with weight 1000).
-        initial_controls: Initial guess, N rows of ``[u1, u2]`` in N (magnitude ≤ 1e6).
+        initial_controls: Initial guess, N rows of ``[u1, u2]`` in N (magnitude ≤ 1e12).
         solver: Termination settings.
         output: Which optional parts of the result to return.
         extra: Members this client does not know; sent as they are.
