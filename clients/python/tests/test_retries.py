@@ -75,20 +75,30 @@ def test_retry_honours_retry_after(single_worker: ServiceProcess, caplog: pytest
     assert retries and "Retry-After 1" in retries[0].getMessage()
 
 
-def test_shutting_down_is_not_retried(tmp_path: Path) -> None:
+def test_shutting_down_is_retried_with_backoff(
+    tmp_path: Path, caplog: pytest.LogCaptureFixture
+) -> None:
+    # One instance, draining: every retry reaches it again (behind a load
+    # balancer the new connection would reach another replica), so the
+    # client backs off, retries, and raises the last answer.
     with running_service(tmp_path, "--workers", "1", "--shutdown-grace-secs", "10") as svc:
         job = BackgroundSolve(svc.url, busy_problem(1500)).start()
         svc.signal_shutdown()
-        with Client(svc.url, retries=3) as client:
+        with Client(svc.url, retries=2, backoff=0.05) as client:
             deadline = time.monotonic() + 5
             while client.ready() and time.monotonic() < deadline:
                 time.sleep(0.02)
             assert client.ready() is False
 
-            started = time.monotonic()
-            with pytest.raises(ShuttingDownError) as info:
-                client.solve(SMALL)
-            assert time.monotonic() - started < 0.5, "shutting-down must not be retried"
+            sleeps: List[float] = []
+            client._sleep = sleeps.append  # type: ignore[method-assign]
+            with caplog.at_level(logging.WARNING, logger="ilqr_client"):
+                with pytest.raises(ShuttingDownError) as info:
+                    client.solve(SMALL)
+        assert len(sleeps) == 2
+        assert 0.05 <= sleeps[0] <= 0.055 and 0.1 <= sleeps[1] <= 0.11
+        retries = [r.getMessage() for r in caplog.records if "shutting down" in r.getMessage()]
+        assert len(retries) == 2 and "retry 1/2" in retries[0], retries
         assert info.value.status == 503 and info.value.retry_after is None
         # The solve that was in flight is allowed to finish.
         assert len(job.result().states) == 10001

@@ -12,14 +12,17 @@ attempts at most, shared by both kinds of failure):
   not come back in lockstep), then try again. When the retries are used up
   the :class:`~ilqr_client.errors.OverloadedError` is raised.
 * Connection failures (:class:`requests.ConnectionError`: refused, reset,
-  connect timeout): exponential backoff ``backoff · 2^attempt`` (capped at
-  ``max_retry_wait``), then try again; the last exception is re-raised.
+  connect timeout) and 503 ``shutting-down``: exponential backoff
+  ``backoff · 2^attempt`` (capped at ``max_retry_wait``), then try again;
+  the last exception or :class:`~ilqr_client.errors.ShuttingDownError` is
+  raised. A draining instance closes the connection with its answer, so the
+  retry opens a new one, which a load balancer sends to another replica
+  (a rolling deploy), or which reaches the instance that replaced this one.
   Solving has no side effects, so repeating a POST is safe.
 * Nothing else is retried: not 4xx answers (the same request would fail the
-  same way), not 503 ``shutting-down`` (this instance is going away), not 500,
-  and not read timeouts (the service abandons a solve whose client has gone,
-  and the same solve would most likely run out of time again: raise the
-  timeout instead).
+  same way), not 500, and not read timeouts (the service abandons a solve
+  whose client has gone, and the same solve would most likely run out of
+  time again: raise the timeout instead).
 
 Progress is logged on the ``ilqr_client.client`` logger (a WARNING per retry).
 """
@@ -36,7 +39,7 @@ from typing import Any, Dict, Mapping, Optional, Tuple, Type, Union, cast
 import requests
 
 from ._version import __version__
-from .errors import OverloadedError, UnexpectedResponseError, error_from_response
+from .errors import OverloadedError, ShuttingDownError, UnexpectedResponseError, error_from_response
 from .models import Problem, SolveResult, _non_finite, to_json_value
 
 __all__ = ["Client", "ProblemLike", "TimeoutSpec"]
@@ -114,14 +117,15 @@ class Client:
             abandoned (and the solve cancelled) while the service is still
             within the budget it was given; ``solve(timeout=...)`` overrides
             it for one call, exactly.
-        retries: Extra attempts after an overload (503 with Retry-After) or a
-            connection failure; 0 disables retrying. See the module docs.
+        retries: Extra attempts after an overload (503 with Retry-After), a
+            503 ``shutting-down`` or a connection failure; 0 disables
+            retrying. See the module docs.
         session: A :class:`requests.Session` to use (for custom adapters,
             proxies, auth...). The client does not close a session it did not
             create.
         backoff: First delay in seconds of the exponential backoff after a
-            connection failure (and after an overload answer that carries no
-            Retry-After).
+            connection failure or a ``shutting-down`` answer (and after an
+            overload answer that carries no Retry-After).
         max_retry_wait: Upper bound in seconds on any single wait, whatever
             Retry-After says, before the jitter (up to 10 % more).
         compress: Ask for gzip-compressed answers (``Accept-Encoding: gzip``,
@@ -378,16 +382,20 @@ class Client:
                     return response
                 error = error_from_response(response)
                 response.close()
-                if not isinstance(error, OverloadedError) or attempt >= self.retries:
+                retried = isinstance(error, (OverloadedError, ShuttingDownError))
+                if not retried or attempt >= self.retries:
                     raise error
-                if error.retry_after is not None:
+                if isinstance(error, ShuttingDownError):
+                    wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                    reason = "service shutting down"
+                elif error.retry_after is not None:
                     wait = self._jitter(min(max(error.retry_after, 0.1), self.max_retry_wait))
-                    reason = f"Retry-After {error.retry_after:g} s"
+                    reason = f"service overloaded (Retry-After {error.retry_after:g} s)"
                 else:
                     wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
-                    reason = "no Retry-After"
+                    reason = "service overloaded (no Retry-After)"
                 logger.warning(
-                    "%s %s: service overloaded (%s); retry %d/%d in %.2f s [request id %s]",
+                    "%s %s: %s; retry %d/%d in %.2f s [request id %s]",
                     method, path, reason, attempt + 1, self.retries, wait, error.request_id,
                 )
             self._sleep(wait)

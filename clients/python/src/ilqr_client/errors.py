@@ -211,7 +211,8 @@ class OverloadedError(ApiError):
 class ShuttingDownError(ApiError):
     """503 ``shutting-down``: this instance is draining; retry on another replica.
 
-    Not retried by the client: the same instance will not come back.
+    :class:`~ilqr_client.Client` retries these with backoff on a new
+    connection (a load balancer sends it to another replica) before raising.
     """
 
 
