@@ -30,6 +30,15 @@ def test_save_figure_writes_a_png(seed_result: SolveResult, tmp_path: Path) -> N
     assert len(data) > 10_000
 
 
+def test_save_figure_writes_the_format_of_the_extension(seed_result: SolveResult, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    for name, magic in [("a.pdf", b"%PDF"), ("a.svg", b"<?xml"), ("a", b"\x89PNG")]:
+        save_figure(seed_result, {}, tmp_path / name)
+        assert (tmp_path / name).read_bytes().startswith(magic), name
+    with pytest.raises(ValueError, match="xyz"):
+        save_figure(seed_result, {}, tmp_path / "a.xyz")
+
+
 def test_save_figure_without_trace(seed_result: SolveResult, tmp_path: Path) -> None:
     pytest.importorskip("matplotlib")
     import dataclasses

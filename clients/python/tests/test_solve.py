@@ -295,3 +295,27 @@ def test_only_a_usable_budget_raises_the_timeout() -> None:
     assert _covering(other, budget(45000)) is other
     assert _covering(30.0, {}) == 30.0
     assert _covering(30.0, {"solver": None}) == 30.0
+
+
+def test_a_result_shows_as_one_short_line(seed_result: SolveResult) -> None:
+    # The generated repr printed every array: 50 KB for the seed.
+    text = repr(seed_result)
+    assert len(text) < 600 and "\n" not in text, text
+    assert text.startswith("SolveResult(status='converged', cost=5520.21")
+    assert "horizon=100" in text and "gains=<100 knots>" in text
+    assert seed_result.trace is not None and f"trace=<{len(seed_result.trace)} rows>" in text
+
+
+def test_a_misspelled_field_is_refused_not_dropped() -> None:
+    # Set on a plain dataclass, `horizn` was kept on the object and never
+    # sent: the solve ran with the default horizon, without a word.
+    problem = Problem(solver=SolverOptions(), output=OutputOptions())
+    with pytest.raises(AttributeError, match="Problem has no field 'horizn'; did you mean 'horizon'"):
+        problem.horizn = 20  # type: ignore[attr-defined]
+    with pytest.raises(AttributeError, match="SolverOptions has no field 'time_limit'"):
+        problem.solver.time_limit = 1  # type: ignore[union-attr]
+    with pytest.raises(AttributeError, match="OutputOptions has no field 'gain'"):
+        problem.output.gain = False  # type: ignore[union-attr]
+    problem.horizon = 20
+    problem.extra["integrator"] = "euler"  # what the client does not know goes here
+    assert problem.to_dict() == {"horizon": 20, "solver": {}, "output": {}, "integrator": "euler"}

@@ -19,6 +19,7 @@ Only the shape of responses is checked here; the service validates problems.
 
 from __future__ import annotations
 
+import difflib
 import math
 import operator
 from dataclasses import MISSING, dataclass, field, fields
@@ -250,8 +251,28 @@ def _numpy() -> Any:
 # --------------------------------------------------------------------------- #
 
 
+class _FieldsOnly:
+    """Refuses to set an attribute that is not a field of the dataclass.
+
+    A misspelled one (``problem.horizn = 20``) would otherwise be kept on
+    the object and left out of the request without a word: the service
+    rejects unknown members, but it never sees this one. Members this client
+    does not know go in ``extra``.
+    """
+
+    __slots__ = ()
+
+    def __setattr__(self, name: str, value: Any) -> None:
+        known = getattr(type(self), "__dataclass_fields__", {})
+        if name not in known:
+            close = difflib.get_close_matches(name, list(known), n=1)
+            hint = f"; did you mean {close[0]!r}?" if close else f"; its fields: {', '.join(known)}"
+            raise AttributeError(f"{type(self).__name__} has no field {name!r}{hint}")
+        object.__setattr__(self, name, value)
+
+
 @dataclass
-class QuadrotorModel:
+class QuadrotorModel(_FieldsOnly):
     """Physical parameters of the planar quadrotor (``model`` in a problem).
 
     Attributes:
@@ -282,7 +303,7 @@ class QuadrotorModel:
 
 
 @dataclass
-class Weights:
+class Weights(_FieldsOnly):
     """Diagonal cost weights (no ½ factors).
 
     Attributes:
@@ -309,7 +330,7 @@ class Weights:
 
 
 @dataclass
-class Obstacle:
+class Obstacle(_FieldsOnly):
     """A soft obstacle: adds ``weight·exp(−‖p − center‖)`` to every stage cost.
 
     Attributes:
@@ -338,7 +359,7 @@ class Obstacle:
 
 
 @dataclass
-class SolverOptions:
+class SolverOptions(_FieldsOnly):
     """When the solver stops (``solver`` in a problem).
 
     Attributes:
@@ -368,7 +389,7 @@ class SolverOptions:
 
 
 @dataclass
-class OutputOptions:
+class OutputOptions(_FieldsOnly):
     """Which optional parts of the result to return (``output`` in a problem).
 
     Attributes:
@@ -393,7 +414,7 @@ class OutputOptions:
 
 
 @dataclass
-class Problem:
+class Problem(_FieldsOnly):
     """A trajectory-optimisation problem for the planar quadrotor.
 
     Every field is optional: ``None`` leaves it out of the request and the
@@ -706,6 +727,25 @@ class SolveResult:
                 None if convex_at_end is None else _bool(convex_at_end, "/convex_model_at_end")
             ),
             request_id=request_id,
+        )
+
+    def __repr__(self) -> str:
+        """A one-line summary: the arrays are counted, not printed.
+
+        The generated repr printed every state, gain and trace row (50 KB for
+        the seed, 4.6 MB at N = 10000) wherever a result was shown in a REPL
+        or logged. The fields themselves are unchanged.
+        """
+        gains = "None" if self.gains is None else f"<{len(self.gains.feedforward)} knots>"
+        trace = "None" if self.trace is None else f"<{len(self.trace)} rows>"
+        approach = self.closest_approach
+        nearest = repr(approach) if len(approach) <= 10 else f"<{len(approach)} obstacles, nearest {min(approach)!r}>"
+        return (
+            f"SolveResult(status={self.status!r}, cost={self.cost!r}, "
+            f"iterations={self.iterations}, horizon={self.horizon}, "
+            f"goal_distance={self.goal_distance!r}, closest_approach={nearest}, "
+            f"solve_time_ms={self.solve_time_ms!r}, queue_time_ms={self.queue_time_ms!r}, "
+            f"gains={gains}, trace={trace}, request_id={self.request_id!r})"
         )
 
     @property

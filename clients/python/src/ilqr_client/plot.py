@@ -193,7 +193,11 @@ def save_figure(
     *,
     dpi: int = 100,
 ) -> None:
-    """Write a two-panel PNG: the trajectory (left) and the cost history (right).
+    """Write a two-panel figure: the trajectory (left) and the cost history (right).
+
+    The format follows the file's extension (``.png``, ``.pdf``, ``.svg``,
+    any matplotlib writes; PNG without one); an unknown one raises
+    ``ValueError``.
 
     Uses :class:`matplotlib.figure.Figure` directly, not pyplot, so it needs
     no GUI backend and leaves pyplot's global state alone. Without a trace
@@ -202,11 +206,12 @@ def save_figure(
     Args:
         result: The solve result.
         problem: The problem that was solved, or ``None`` (see :func:`plot_solution`).
-        path: Where to write the PNG.
+        path: Where to write the figure.
         dpi: Resolution.
 
     Raises:
         ImportError: if matplotlib is not installed.
+        ValueError: if matplotlib cannot write the extension's format.
     """
     _require_matplotlib()
     from matplotlib.figure import Figure
@@ -221,4 +226,8 @@ def save_figure(
                    ha="center", va="center", transform=right.transAxes)
         right.set_axis_off()
     figure.tight_layout()
-    figure.savefig(os.fspath(path), dpi=dpi, format="png")
+    # Without `format` matplotlib takes it from the extension; a path without
+    # one gets PNG, written at the path as given (matplotlib itself would
+    # append ".png").
+    path = os.fspath(path)
+    figure.savefig(path, dpi=dpi, format=None if os.path.splitext(path)[1] else "png")
