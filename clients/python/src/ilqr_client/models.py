@@ -460,9 +460,12 @@ class Problem(_FieldsOnly):
     def from_dict(cls, data: Mapping[str, Any]) -> "Problem":
         """Build from a problem document, e.g. the answer of ``GET /problems/default``.
 
-        Explicit JSON ``null`` members become ``None`` (the service treats a
-        missing member and its default the same way). Unknown members are kept
-        in ``extra``.
+        Explicit JSON ``null`` members become ``None``, which :meth:`to_dict`
+        leaves out, so the service applies its default. (Posted as is, the
+        service takes ``null`` only for ``initial_controls`` and
+        ``solver.time_limit_ms``, whose defaults are "none given"; send
+        :meth:`to_dict`, not ``dataclasses.asdict``.) Unknown members are
+        kept in ``extra``.
         """
         known, extra = _split_known(cls, data, "(problem)")
         parsers: Dict[str, Any] = {
@@ -657,7 +660,10 @@ class SolveResult:
         solve_time_ms: Time spent solving, in ms.
         queue_time_ms: Time spent waiting for a worker, in ms.
         gains: The feedback policy, or ``None`` when ``output.gains`` was false
-            or no backward pass completed (0 iterations, no policy to give).
+            or no backward pass completed (no policy to give). Test ``gains is
+            None``, not ``iterations == 0``: a 0-iteration answer has gains
+            when its first pass completed (a converged warm start,
+            ``max_iterations: 0``, or a budget that ran out after that pass).
         trace: One entry per iteration, or ``None`` when ``output.trace`` was false.
         convexified_after_iteration: ``None`` when the solve used the cost's
             exact Hessian throughout; otherwise the iterations completed when
