@@ -605,15 +605,26 @@ fn pointer_label(pointer: &str) -> &str {
     }
 }
 
+/// Six decimals where that shows the number (0.001 to 1e9, or 0), the
+/// same six significant places in exponent form elsewhere: `{:.6}` printed
+/// a cost of 5.4e-6 as 0.000005 and one of 5.2e37 as 38 digits.
+fn six_places(x: f64) -> String {
+    if x == 0.0 || (1e-3..1e9).contains(&x.abs()) || !x.is_finite() {
+        format!("{x:.6}")
+    } else {
+        format!("{x:.6e}")
+    }
+}
+
 /// The human summary printed by `solve`.
 pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
     let mut s = format!(
-        "status           {}\niterations       {}\ncost             {:.6} (initial {:.6})\ngoal distance    {:.6} m\n",
+        "status           {}\niterations       {}\ncost             {} (initial {})\ngoal distance    {} m\n",
         r.status.as_str(),
         r.iterations,
-        r.cost,
-        r.initial_cost,
-        r.goal_distance,
+        six_places(r.cost),
+        six_places(r.initial_cost),
+        six_places(r.goal_distance),
     );
     // Up to SHOWN obstacles: with more, the nearest SHOWN (in index
     // order); the result's `closest_approach` has every one.
@@ -645,10 +656,17 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
     if let Some(k) = r.convexified_after_iteration {
         s += &format!(
             "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20); {}\n",
-            match (r.convex_model_at_end == Some(true), r.gains.is_some()) {
-                (true, true) => "the gains come from the convex model",
-                (true, false) => "it ended on the convex model",
-                (false, _) => "the exact Hessian took over again",
+            // Without gains (turned off, or no pass completed with either
+            // model) there is nothing to attribute to a model.
+            match (
+                r.convex_model_at_end == Some(true),
+                r.gains.is_some(),
+                spec.output.gains,
+            ) {
+                (true, true, _) => "the gains come from the convex model",
+                (_, false, true) => "no backward pass completed with either model, so no gains",
+                (true, false, false) => "it ended on the convex model",
+                (false, _, _) => "the exact Hessian took over again",
             }
         );
     }

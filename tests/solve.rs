@@ -750,6 +750,55 @@ fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
         text.contains("\nconvexified      after iteration 2 "),
         "{text}"
     );
+
+    // A fallback whose convex model completed no pass either has no gains
+    // to attribute to a model (the summary said "the exact Hessian took
+    // over again"). Its cost, 1.8e24, is written in exponent form.
+    let stuck = spec(json!({
+        "model": {"mass": 1e-6, "inertia": 1e-6, "arm_length": 1e6, "gravity": 1e4},
+        "dt": 10,
+        "initial_state": [1e6, -1e6, 1e6, 1e6, -1e6, 1e6],
+        "obstacles": [{"center": [1e6, -1e6], "weight": 1e12}],
+    }));
+    let r = solve(&stuck, None, &cancel).unwrap();
+    assert!(r.gains.is_none() && r.convexified_after_iteration.is_some());
+    let text = ilqr_service::cli::summary(&stuck, &r);
+    assert!(
+        text.contains("; no backward pass completed with either model, so no gains\n"),
+        "{text}"
+    );
+    let cost = text.lines().find(|l| l.starts_with("cost")).unwrap();
+    assert_eq!(
+        cost.split_whitespace().nth(1),
+        Some(&*format!("{:.6e}", r.cost))
+    );
+}
+
+/// The summary shows small and large numbers in exponent form rather
+/// than as 0.000005 or 38 digits, and ordinary ones with six decimals.
+#[test]
+fn the_summary_writes_every_cost_with_its_significant_digits() {
+    let cancel = AtomicBool::new(false);
+    let tiny = spec(json!({
+        "weights": {"state": vec![1e-9; 6], "control": [1e-10, 1e-10], "terminal": vec![5e-5; 6]},
+        "obstacles": [{"center": [4.5, 4.5], "weight": 1e-6}],
+    }));
+    let r = solve(&tiny, None, &cancel).unwrap();
+    let text = ilqr_service::cli::summary(&tiny, &r);
+    let cost = text.lines().find(|l| l.starts_with("cost")).unwrap();
+    assert!(r.cost < 1e-3);
+    assert_eq!(
+        cost.split_whitespace()
+            .nth(1)
+            .unwrap()
+            .parse::<f64>()
+            .unwrap(),
+        format!("{:.6e}", r.cost).parse::<f64>().unwrap(),
+        "{cost}"
+    );
+    let seed = solve(&spec(json!({})), None, &cancel).unwrap();
+    let text = ilqr_service::cli::summary(&spec(json!({})), &seed);
+    assert!(text.contains("\ncost             5520.212"), "{text}");
 }
 
 /// Feedback gains (N × 2 × 6, row-major) and the states they are about.
