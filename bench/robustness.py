@@ -64,6 +64,14 @@ lower; 4 run on to the cap at costs 1.2e-9 to 7.2e-5 lower (problems 5,
 iterations 37537 -> 38945. Converged with a last mu above 1: 8 (37, 83,
 118, 177, 205, 219, 244, 268).
 
+Also tried 2026-11-24 (a review's r/I = 1e4 vehicle stops at 2.6x the
+optimum, the exact Hessian needing mu near 1e11): switching to the convex
+model once mu passes 1e10 instead of mu_max = 1e20. That problem then
+converges in 36 iterations, and 1e6 or 1e8 do the same; on these 300,
+1e10 ended 14 solves higher (by up to 9.6e-2 relative) and 6 lower (up to
+4.1e-1), 1e6 ended 32 higher and 25 lower: other local optima, not a
+better rule; kept at 1e20.
+
 Measured 2026-11-24 after a rejected step of the pass at mu = 0 stopped
 resetting mu to mu_min: the same 256 / 44 / 0, the same 8 converged above
 mu = 1 with the same iteration counts, the same two convex fallbacks.
