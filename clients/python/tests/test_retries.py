@@ -117,3 +117,19 @@ def test_connection_failures_are_retried_with_backoff(monkeypatch: pytest.Monkey
         assert 0.05 <= sleeps[0] <= 0.055 and 0.1 <= sleeps[1] <= 0.11
         assert client.health() is False
         assert client.ready() is False
+
+
+def test_a_probe_of_a_service_that_does_not_answer_gives_up_on_its_own_timeout() -> None:
+    # The kernel completes the connection from the listen backlog, and
+    # nobody ever answers: the probe waited the client's solve timeout (30 s).
+    import socket
+
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        url = f"http://127.0.0.1:{silent.getsockname()[1]}"
+        with Client(url, timeout=30) as client:
+            started = time.monotonic()
+            assert client.health(timeout=0.2) is False
+            assert client.ready(timeout=0.2) is False
+            assert time.monotonic() - started < 2

@@ -51,6 +51,9 @@ ProblemLike = Union[Problem, Mapping[str, Any], None]
 #: A requests timeout: seconds for connect and read alike, or ``(connect, read)``.
 TimeoutSpec = Union[float, Tuple[float, float]]
 
+#: Seconds :meth:`Client.health` and :meth:`Client.ready` wait by default.
+PROBE_TIMEOUT = 5.0
+
 #: Seconds a solve's read timeout allows beyond its ``solver.time_limit_ms``:
 #: the budget covers queueing and solving, not encoding the answer and
 #: moving it (about 0.1 s for the largest answer on a LAN).
@@ -294,21 +297,24 @@ class Client:
         except (ValueError, TypeError) as exc:
             raise self._unexpected(response, f"malformed problem document: {exc}") from exc
 
-    def health(self) -> bool:
+    def health(self, timeout: TimeoutSpec = PROBE_TIMEOUT) -> bool:
         """Liveness (``GET /healthz``): ``True`` iff the service answers 200.
 
-        A single attempt; any other status or a transport failure gives
-        ``False`` rather than an exception.
+        A single attempt; any other status, a transport failure or no answer
+        within ``timeout`` seconds (default 5, not the client's solve
+        timeout: a health check that hangs for 30 s is no health check)
+        gives ``False`` rather than an exception.
         """
-        return self._probe("/healthz")
+        return self._probe("/healthz", timeout)
 
-    def ready(self) -> bool:
+    def ready(self, timeout: TimeoutSpec = PROBE_TIMEOUT) -> bool:
         """Readiness (``GET /readyz``): ``True`` iff the service admits solves.
 
         ``False`` while it drains for shutdown (503), for any other non-200
-        status and when it cannot be reached. A single attempt.
+        status, when it cannot be reached and when it does not answer within
+        ``timeout`` seconds (default 5). A single attempt.
         """
-        return self._probe("/readyz")
+        return self._probe("/readyz", timeout)
 
     # ------------------------------------------------------------------ #
     # Internals
@@ -328,9 +334,9 @@ class Client:
             return cast(Dict[str, Any], to_json_value(problem))
         raise TypeError(f"problem must be a Problem, a mapping or None, not {type(problem).__name__}")
 
-    def _probe(self, path: str) -> bool:
+    def _probe(self, path: str, timeout: TimeoutSpec) -> bool:
         try:
-            response = self.session.get(self._url(path), timeout=self.timeout)
+            response = self.session.get(self._url(path), timeout=timeout)
         except requests.RequestException as exc:
             logger.debug("GET %s failed: %s", path, exc)
             return False
