@@ -554,11 +554,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // iterate and expansion: the least regularised gains about it, since
         // μ only grows between accepted steps.
         let mut iterate_mu = None;
-        // The pass at μ = 0 below, when its step failed: the μ it replaced
-        // (restored, then raised, after the failed line search), and
-        // whether it failed at the current iterate (the derivatives are the
-        // same until a step is accepted, so it would fail again).
-        let mut mu_before_probe = None;
+        // Whether a pass at μ = 0 failed at the current iterate (Q_uu not
+        // positive definite there, or its step rejected): the derivatives
+        // are the same until a step is accepted, so it would fail again.
         let mut probe_failed = false;
         let mut convexified_after = None;
         let mut model = Model::Exact;
@@ -654,6 +652,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // cost 4e-6 lower, at tolerance 1e-9).
             let mut minimum = (converged && mu <= options.mu_converged_max && negligible(&bw))
                 || (negligible(&bw) && mu <= options.mu_min);
+            // The μ the pass at μ = 0 below replaced, if it ran this
+            // iteration: restored, then raised, if its step is rejected.
+            let mut mu_before_probe = None;
             if !minimum {
                 // Once per iteration, and before the pass at μ = 0 below,
                 // which costs a backward pass.
@@ -687,7 +688,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         }
                         // The gains of the pass at μ stay, about this iterate.
                         Err(Unfinished::Interrupted(status)) => break status,
-                        Err(Unfinished::NotPositiveDefinite) => {}
+                        Err(Unfinished::NotPositiveDefinite) => probe_failed = true,
                     }
                 }
             }
@@ -783,7 +784,6 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             }
             if accepted {
                 stale = true;
-                mu_before_probe = None;
                 // The gains describe the previous iterate until the next
                 // backward pass completes.
                 gains_current = false;
@@ -801,9 +801,11 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // prediction, the pass at μ = 0 and its failed step, and μ
                 // never rose: mass 1e6 from zero thrust ran 250 iterations
                 // without an accepted step, at μ alternating 0 and 1e-6.
-                if let Some(before) = mu_before_probe.take() {
+                // Any rejected step at μ = 0 (an ordinary pass there too)
+                // tells the pass at μ = 0 not to run again at this iterate.
+                probe_failed |= mu == 0.0;
+                if let Some(before) = mu_before_probe {
                     mu = before;
-                    probe_failed = true;
                 }
                 increase(&mut mu, &mut delta, options);
             }
