@@ -257,18 +257,24 @@ class _FieldsOnly:
     A misspelled one (``problem.horizn = 20``) would otherwise be kept on
     the object and left out of the request without a word: the service
     rejects unknown members, but it never sees this one. Members this client
-    does not know go in ``extra``.
+    does not know go in ``extra``. A subclass cannot add plain attributes
+    either: give it fields.
     """
 
     __slots__ = ()
 
-    def __setattr__(self, name: str, value: Any) -> None:
-        known = getattr(type(self), "__dataclass_fields__", {})
-        if name not in known:
-            close = difflib.get_close_matches(name, list(known), n=1)
-            hint = f"; did you mean {close[0]!r}?" if close else f"; its fields: {', '.join(known)}"
-            raise AttributeError(f"{type(self).__name__} has no field {name!r}{hint}")
-        object.__setattr__(self, name, value)
+    # Hidden from type checkers: a class with a `__setattr__` taking any
+    # name makes them accept any attribute assignment, and mypy --strict
+    # already reports `problem.horizn = 20` as an error.
+    if not TYPE_CHECKING:
+
+        def __setattr__(self, name, value):
+            known = getattr(type(self), "__dataclass_fields__", {})
+            if name not in known:
+                close = difflib.get_close_matches(name, list(known), n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else f"; its fields: {', '.join(known)}"
+                raise AttributeError(f"{type(self).__name__} has no field {name!r}{hint}")
+            object.__setattr__(self, name, value)
 
 
 @dataclass
