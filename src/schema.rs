@@ -114,7 +114,7 @@ pub fn initial_controls() -> Schema {
         .items(fixed(2, number_in(-MAX_CONTROL, MAX_CONTROL)))
         .description(Some(
             "Initial guess for the controls: one [u1, u2] row per step (N rows), rotor \
-             thrusts in N of magnitude at most 1e6. Absent or null: hover thrust m·g/2 on \
+             thrusts in N of magnitude at most 1e12. Absent or null: hover thrust m·g/2 on \
              both rotors.",
         ))
         .build()
