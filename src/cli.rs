@@ -666,7 +666,13 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
                 (true, true, _) => "the gains come from the convex model",
                 (_, false, true) => "no backward pass completed with either model, so no gains",
                 (true, false, false) => "it ended on the convex model",
-                (false, _, _) => "the exact Hessian took over again",
+                (false, true, _) => "the exact Hessian took over again",
+                // Gains turned off: "false" is also what a solve that
+                // completed no pass at all says.
+                (false, false, false) => {
+                    "the exact Hessian took over again, or no pass completed \
+                     (ask for the gains to tell which)"
+                }
             }
         );
     }

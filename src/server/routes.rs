@@ -133,7 +133,8 @@ fn with_request_id_header(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi
     let header = HeaderBuilder::new()
         .description(Some(
             "The request's id, for finding it in the logs: the client's own \
-             `x-request-id` if it sent one, otherwise a new UUID",
+             `x-request-id` if it sent a usable one (1 to 128 visible ASCII \
+             characters), otherwise a new UUID",
         ))
         .build();
     for item in spec.paths.paths.values_mut() {

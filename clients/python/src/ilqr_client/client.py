@@ -5,7 +5,7 @@ typed methods: :meth:`Client.solve`, :meth:`Client.default_problem`,
 :meth:`Client.health` and :meth:`Client.ready`.
 
 Retry policy (for ``solve`` and ``default_problem``; ``retries`` extra
-attempts at most, shared by both kinds of failure):
+attempts at most, shared by the three kinds of failure):
 
 * 503 ``overloaded``: sleep for the answer's ``Retry-After`` (capped at
   ``max_retry_wait``, plus up to 10 % random jitter so that many clients do
