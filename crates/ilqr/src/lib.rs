@@ -63,7 +63,7 @@ pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
     TerminalCost, TerminalExpansion, TerminalTracking,
 };
-pub use dynamics::{ContinuousDynamics, DiscreteDynamics, Euler};
+pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler};
 pub use quadrotor::Quadrotor2D;
 pub use solver::{
     Options, Problem, RiccatiStep, SolveError, Solver, Status, Summary, TraceRow, Value,

@@ -15,7 +15,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::dynamics::ContinuousDynamics;
+use crate::dynamics::{ContinuousDynamics, Curvature};
 
 /// Physical parameters of the planar quadrotor. All must be positive and
 /// finite; `ilqr-service` validates that before building one.
@@ -79,5 +79,33 @@ impl ContinuousDynamics<6, 2> for Quadrotor2D {
             torque,    -torque,
         );
         (f_x, f_u)
+    }
+
+    /// Only the two translational accelerations are curved, in θ and the
+    /// thrust: `−s·sinθ/m` and `s·cosθ/m − g` with `s = u1 + u2`. They are
+    /// linear in `u`, so `uu` is zero.
+    #[inline]
+    fn curvature(
+        &self,
+        x: &SVector<f64, 6>,
+        u: &SVector<f64, 2>,
+        lambda: &SVector<f64, 6>,
+    ) -> Option<Curvature<6, 2>> {
+        let (sin, cos) = x[2].sin_cos();
+        let thrust = u[0] + u[1];
+        let m = self.mass;
+        let mut xx = SMatrix::<f64, 6, 6>::zeros();
+        // ∂²/∂θ² of −s·sinθ/m is s·sinθ/m; of s·cosθ/m − g, −s·cosθ/m.
+        xx[(2, 2)] = thrust * (lambda[3] * sin - lambda[4] * cos) / m;
+        // ∂²/∂u_j∂θ: −cosθ/m and −sinθ/m, the same for both rotors.
+        let theta_u = -(lambda[3] * cos + lambda[4] * sin) / m;
+        let mut ux = SMatrix::<f64, 2, 6>::zeros();
+        ux[(0, 2)] = theta_u;
+        ux[(1, 2)] = theta_u;
+        Some(Curvature {
+            xx,
+            ux,
+            uu: SMatrix::zeros(),
+        })
     }
 }

@@ -126,6 +126,28 @@ proptest! {
         assert_close(&f_u, &jacobian(|u| m.derivative(&x, u), &u), 1e-6, "f_u")?;
     }
 
+    /// The step's second derivatives weighted by a covector (DDP's terms):
+    /// the Jacobian of `λᵀ·(A, B)` in `(x, u)`.
+    #[test]
+    fn euler_curvature_matches_finite_differences(
+        m in model(), x in state(), u in control(), dt in 0.001..0.2f64,
+        lambda in prop::array::uniform6(-100.0..100.0f64),
+    ) {
+        let d = Euler { model: m, dt };
+        let lambda = SVector::from(lambda);
+        let c = d.curvature(&x, &u, &lambda).expect("the quadrotor gives its curvature");
+        // The gradient of λᵀF, as a function of (x, u), is [Aᵀλ; Bᵀλ].
+        let grad = |z: &SVector<f64, 8>| {
+            let (x, u) = (z.fixed_rows::<6>(0).into_owned(), z.fixed_rows::<2>(6).into_owned());
+            let (a, b) = d.linearize(&x, &u);
+            joined(&(a.transpose() * lambda), &(b.transpose() * lambda))
+        };
+        let h = jacobian(grad, &joined(&x, &u));
+        assert_close(&c.xx, &h.fixed_view::<6, 6>(0, 0).into_owned(), 1e-5, "xx")?;
+        assert_close(&c.ux, &h.fixed_view::<2, 6>(6, 0).into_owned(), 1e-5, "ux")?;
+        assert_close(&c.uu, &h.fixed_view::<2, 2>(6, 6).into_owned(), 1e-5, "uu")?;
+    }
+
     #[test]
     fn euler_linearisation_matches_finite_differences(m in model(), x in state(), u in control(), dt in 0.001..0.2f64) {
         let d = Euler { model: m, dt };
