@@ -6,24 +6,30 @@ mod common;
 
 use std::alloc::{GlobalAlloc, Layout, System};
 use std::cell::Cell;
-use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::atomic::AtomicBool;
 
 use ilqr::{Options, Solver, Status};
 
 struct Counting;
 
-static ALLOCATIONS: AtomicUsize = AtomicUsize::new(0);
-
 thread_local! {
     /// Count only this thread's allocations: the test harness allocates on
     /// its own threads while a test runs.
     static COUNTING: Cell<bool> = const { Cell::new(false) };
+    /// And count them per thread: with one global count, the tests running
+    /// at once on other threads added their own counted allocations (the
+    /// first test's deliberate Vec) to this one's window.
+    static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
 }
 
 fn note() {
     if COUNTING.with(Cell::get) {
-        ALLOCATIONS.fetch_add(1, Ordering::SeqCst);
+        ALLOCATIONS.with(|n| n.set(n.get() + 1));
     }
+}
+
+fn allocations() -> usize {
+    ALLOCATIONS.with(Cell::get)
 }
 
 unsafe impl GlobalAlloc for Counting {
@@ -55,11 +61,11 @@ fn allocations_of_a_warm_solve(
     // The first solve may size the trace buffer.
     solver.solve(problem, &hover, options, &never).unwrap();
 
-    let before = ALLOCATIONS.load(Ordering::SeqCst);
+    let before = allocations();
     COUNTING.with(|c| c.set(true));
     let s = solver.solve(problem, &hover, options, &never).unwrap();
     COUNTING.with(|c| c.set(false));
-    (ALLOCATIONS.load(Ordering::SeqCst) - before, s)
+    (allocations() - before, s)
 }
 
 #[test]
@@ -73,12 +79,25 @@ fn a_warm_solver_solves_without_allocating() {
     let v = std::hint::black_box(vec![1u8; 64]);
     COUNTING.with(|c| c.set(false));
     drop(v);
-    assert_eq!(ALLOCATIONS.load(Ordering::SeqCst), during + 1);
+    assert_eq!(allocations(), during + 1);
     assert_eq!(
         during, 0,
         "{during} allocations in a {}-iteration solve",
         s.iterations
     );
+}
+
+/// Nor with the dynamics' curvature in the backward pass (DDP).
+#[test]
+fn a_second_order_solve_does_not_allocate() {
+    let options = Options {
+        second_order: true,
+        ..Options::default()
+    };
+    let (during, s) = allocations_of_a_warm_solve(&common::seed_problem(100, 0.05), &options);
+    assert_eq!(s.status, Status::Converged);
+    assert!(s.iterations > 5);
+    assert_eq!(during, 0, "{during} allocations");
 }
 
 /// The other paths of the loop do not allocate either: the convex
