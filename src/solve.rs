@@ -18,7 +18,7 @@ use nalgebra::{SVector, Vector2};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::problem::{FieldError, Integrator, ModelKind, ProblemSpec};
+use crate::problem::{FieldError, Integrator, Method, ModelKind, ProblemSpec};
 use crate::schema;
 
 /// How a solve ended. Every status is a successful answer carrying the best
@@ -226,6 +226,7 @@ pub fn solve(
         // Every term is non-negative (validation keeps weights ≥ 0), so a
         // cost of 0 is a global optimum.
         cost_lower_bound: Some(0.0),
+        second_order: spec.solver.method == Method::Ddp,
         ..Options::default()
     };
 

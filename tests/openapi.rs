@@ -132,7 +132,7 @@ fn the_spec_states_the_defaults_the_code_applies() {
             checked += 1;
         }
     }
-    assert_eq!(checked, 19);
+    assert_eq!(checked, 20);
 }
 
 /// The answers never hold `null` (left-out members are absent, and every

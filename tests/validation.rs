@@ -399,6 +399,9 @@ fn wrong_types_and_unknown_fields_are_rejected() {
     rejects(json!({"model": {"mas": 1}}), "/model/mas");
     rejects(json!({"model": {"type": "quadrotor_3d"}}), "/model/type");
     rejects(json!({"integrator": "rk4"}), "/integrator");
+    rejects(json!({"solver": {"method": "newton"}}), "/solver/method");
+    rejects(json!({"solver": {"method": null}}), "/solver/method");
+    assert!(errors(&json!({"solver": {"method": "ddp"}})).is_empty());
     rejects(
         json!({"obstacles": [{"center": [1, 1]}]}),
         "/obstacles/0/weight",

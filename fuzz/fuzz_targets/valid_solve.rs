@@ -9,7 +9,7 @@ use std::time::{Duration, Instant};
 use arbitrary::Arbitrary;
 use ilqr_service::problem::{
     MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_ITERATIONS, MAX_OBSTACLES, MAX_PARAMETER, MAX_STATE,
-    MAX_WEIGHT, MIN_PARAMETER, Obstacle, ProblemSpec,
+    MAX_WEIGHT, MIN_PARAMETER, Method, Obstacle, ProblemSpec,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -109,6 +109,8 @@ struct Input {
     max_iterations: u16,
     tolerance: Num,
     budget_ms: u8,
+    /// DDP (the dynamics' second derivatives) instead of iLQR.
+    ddp: bool,
 }
 
 fuzz_target!(|input: Input| {
@@ -165,6 +167,7 @@ fuzz_target!(|input: Input| {
     spec.solver.tolerance = if tol >= 1.0 { 0.999 } else { tol };
     let budget_ms = 1 + u64::from(input.budget_ms) % 30;
     spec.solver.time_limit_ms = Some(budget_ms);
+    spec.solver.method = if input.ddp { Method::Ddp } else { Method::Ilqr };
 
     let limits = common::service_limits();
     if let Err(e) = spec.validate(&limits) {

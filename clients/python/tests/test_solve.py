@@ -16,6 +16,7 @@ from ilqr_client import (
     SolveResult,
     SolverOptions,
     TraceEntry,
+    Weights,
 )
 
 
@@ -319,3 +320,16 @@ def test_a_misspelled_field_is_refused_not_dropped() -> None:
     problem.horizon = 20
     problem.extra["integrator"] = "euler"  # what the client does not know goes here
     assert problem.to_dict() == {"horizon": 20, "solver": {}, "output": {}, "integrator": "euler"}
+
+
+def test_ddp_converges_in_a_few_steps_where_ilqr_crawls(client: Client) -> None:
+    # The seed with R = 90 I: iLQR crawls (hundreds of half steps), DDP's
+    # model has the dynamics' curvature and converges in a few.
+    problem = Problem(weights=Weights(control=[90, 90]), output=OutputOptions(gains=False, trace=False))
+    ilqr = client.solve(problem)
+    problem.solver = SolverOptions(method="ddp")
+    ddp = client.solve(problem)
+    assert ilqr.converged and ddp.converged
+    assert ilqr.iterations > 200 and ddp.iterations <= 15, (ilqr.iterations, ddp.iterations)
+    assert ddp.cost == pytest.approx(ilqr.cost, rel=1e-8)
+    assert client.default_problem().solver.method == "ilqr"  # type: ignore[union-attr]

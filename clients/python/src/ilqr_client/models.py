@@ -366,7 +366,7 @@ class Obstacle(_FieldsOnly):
 
 @dataclass
 class SolverOptions(_FieldsOnly):
-    """When the solver stops (``solver`` in a problem).
+    """How the solver runs and when it stops (``solver`` in a problem).
 
     Attributes:
         max_iterations: Iteration limit, 0..10000. Service default 500.
@@ -375,12 +375,17 @@ class SolverOptions(_FieldsOnly):
         time_limit_ms: Wall-clock budget in ms, counted from when the service
             admits the request (queue wait included); ``None`` means the
             service's default budget (``--default-time-limit-ms``).
+        method: ``"ilqr"`` (service default: the paper's algorithm) or
+            ``"ddp"`` (keeps the dynamics' second derivatives; converges in
+            a few steps where iLQR crawls, and may find another local
+            optimum).
         extra: Members this client does not know; sent as they are.
     """
 
     max_iterations: Optional[int] = None
     tolerance: Optional[float] = None
     time_limit_ms: Optional[int] = None
+    method: Optional[str] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
