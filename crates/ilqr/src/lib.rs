@@ -9,9 +9,10 @@
 //!
 //! * [`dynamics`]: the [`ContinuousDynamics`] and [`DiscreteDynamics`] traits
 //!   and the explicit [`Euler`] integrator (eq. 9 of the seed paper) that turns
-//!   one into the other.
+//!   one into the other; optionally the dynamics' second derivatives
+//!   ([`Curvature`]) for DDP.
 //! * [`quadrotor`]: the planar quadrotor of eqs. 4–6 with analytic Jacobians
-//!   (eq. 11).
+//!   (eq. 11) and curvature.
 //! * [`cost`]: the [`Cost`] trait the solver minimises, its quadratic model
 //!   ([`StageExpansion`], [`TerminalExpansion`]) and the terms of eqs. 13–15
 //!   ([`StateTracking`], [`ControlEffort`], [`ExpObstacle`], [`TerminalTracking`]),
@@ -21,7 +22,8 @@
 //!   where no regularisation helps, a fall back to the cost's convex
 //!   expansion ([`Cost::stage_expand_convex`]); its [`Options`], the
 //!   [`Status`] that says how a solve ended and the per-iteration
-//!   [`TraceRow`].
+//!   [`TraceRow`]. With [`Options::second_order`] the backward pass keeps
+//!   the dynamics' curvature (DDP) instead of dropping it (iLQR).
 //! * `kernels` (private): the column-major small-matrix kernels the Riccati
 //!   step ([`riccati_step`]) is written in.
 //!
