@@ -998,3 +998,40 @@ fn closest_approach_stops_at_the_segment_end() {
     assert_eq!(r.states[1][0], 1.0);
     assert_eq!(r.closest_approach, vec![2.0]);
 }
+
+/// DDP's dynamics curvature can make `V_xx` indefinite where no μ on
+/// `Q_uu` helps. Without obstacles there was no fallback (nothing to
+/// convexify), and this problem ended `no_progress` at iteration 0 with no
+/// gains, where iLQR converges in 6. The convex model now also drops the
+/// curvature, so DDP falls back to iLQR's model and converges with it.
+#[test]
+fn ddp_without_obstacles_falls_back_to_the_first_order_model() {
+    let cancel = AtomicBool::new(false);
+    let problem = |method: &str| {
+        spec(json!({
+            "dt": 1.7573381559589116, "horizon": 200,
+            "initial_state": [5.846424938148553, 0.8722693513604585, 0.3074465662808368, 0, 0, 0],
+            "goal_state": [2.424403214069132, 2.9500778890144006, 0, 0, 0, 0],
+            "obstacles": [],
+            "weights": {"state": vec![5.13; 6], "control": [0.0074, 0.0074], "terminal": vec![2573; 6]},
+            "solver": {"method": method},
+        }))
+    };
+    let ilqr = solve(&problem("ilqr"), None, &cancel).unwrap();
+    let ddp = solve(&problem("ddp"), None, &cancel).unwrap();
+    assert_eq!(ilqr.status.as_str(), "converged");
+    assert_eq!(
+        ddp.status.as_str(),
+        "converged",
+        "{} iterations",
+        ddp.iterations
+    );
+    assert!(ddp.convexified_after_iteration.is_some());
+    assert!(
+        (ddp.cost - ilqr.cost).abs() <= 1e-6 * ilqr.cost,
+        "{} {}",
+        ddp.cost,
+        ilqr.cost
+    );
+    assert!(ddp.gains.is_some());
+}

@@ -1265,7 +1265,8 @@ enum Model {
 ///   (1 mg quadrotor, 10 s steps). Nor is a model step that no line search
 ///   accepts;
 /// * the convex expansion is stuck too, the fallback is off, or the cost
-///   has nothing to convexify.
+///   has nothing to convexify (and the solve is not DDP, whose convex model
+///   drops the dynamics' curvature too).
 fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
     problem: &Problem<D, C, NX>,
     options: &Options,
@@ -1273,11 +1274,15 @@ fn fall_back<D, C: Cost<NX, NU>, const NX: usize, const NU: usize>(
     (moved, iterations): (bool, usize),
 ) -> Result<(), Status> {
     // A cost with nothing to convexify would only repeat what just failed
-    // (and report a fallback that changed nothing).
+    // (and report a fallback that changed nothing), except under DDP: the
+    // convex model also drops the dynamics' curvature, which can make V_xx
+    // indefinite where no μ on Q_uu helps (a review's obstacle-free
+    // problems: DDP ended `NoProgress` at iteration 0 in 59 of 200 where
+    // iLQR made progress).
     if *model == Model::Convex
         || (*model == Model::Checking && !moved)
         || !options.convex_fallback
-        || !problem.cost.has_convex_approximation()
+        || !(problem.cost.has_convex_approximation() || options.second_order)
     {
         return Err(Status::NoProgress);
     }
