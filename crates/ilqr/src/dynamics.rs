@@ -11,7 +11,10 @@
 //!
 //! A model may also give the second derivatives of its vector field,
 //! contracted with a covector ([`ContinuousDynamics::curvature`]): the
-//! terms iLQR drops and DDP keeps ([`crate::Options::second_order`]).
+//! terms iLQR drops and DDP keeps ([`crate::Options::second_order`]). An
+//! integrator must chain those through its stages too (Euler scales them by
+//! `dt`); one that leaves [`DiscreteDynamics::curvature`] at its default
+//! makes DDP run first-order, without a word.
 
 use nalgebra::{SMatrix, SVector};
 
