@@ -378,7 +378,7 @@ class Client:
             except requests.ConnectionError as exc:
                 if attempt >= self.retries:
                     raise
-                wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                wait = self._backoff(attempt)
                 logger.warning(
                     "%s %s: connection failed (%s); retry %d/%d in %.2f s",
                     method, path, exc, attempt + 1, self.retries, wait,
@@ -392,13 +392,13 @@ class Client:
                 if not retried or attempt >= self.retries:
                     raise error
                 if isinstance(error, ShuttingDownError):
-                    wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                    wait = self._backoff(attempt)
                     reason = "service shutting down"
                 elif error.retry_after is not None:
                     wait = self._jitter(min(max(error.retry_after, 0.1), self.max_retry_wait))
                     reason = f"service overloaded (Retry-After {error.retry_after:g} s)"
                 else:
-                    wait = self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
+                    wait = self._backoff(attempt)
                     reason = "service overloaded (no Retry-After)"
                 logger.warning(
                     "%s %s: %s; retry %d/%d in %.2f s [request id %s]",
@@ -406,6 +406,10 @@ class Client:
                 )
             self._sleep(wait)
             attempt += 1
+
+    def _backoff(self, attempt: int) -> float:
+        """The exponential backoff before retry ``attempt + 1``, capped, with jitter."""
+        return self._jitter(min(self.backoff * 2 ** attempt, self.max_retry_wait))
 
     @staticmethod
     def _jitter(wait: float) -> float:
