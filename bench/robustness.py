@@ -1,12 +1,14 @@
 """How often the solver ends each way on random, badly scaled problems.
 
-    python3 bench/robustness.py target/release/ilqr-service 300 1
+    python3 bench/robustness.py target/release/ilqr-service 300 1 [METHOD]
 
 Draws COUNT problems with seed SEED (dt 0.01-1 s, horizon 50/100/200,
 random start, goal and 0-4 obstacles with weights 1-1e8, state, control and
 terminal weights over several decades; in 30% of them the start sits
 within 1 mm of the first obstacle's centre), solves each with
-`BINARY solve - -o FILE`, and prints the count of each status, plus the
+`BINARY solve - -o FILE` (with `"solver": {"method": METHOD}` when METHOD,
+`ilqr` or `ddp`, is given), and prints the count of each status and the
+iterations of all solves together, plus the
 solves that ended `converged` with a last regularisation above 1: a heavily
 damped step is small, so it could look converged without being so; and
 those that fell back to the convex model of the cost
@@ -66,15 +68,16 @@ iterations 37537 -> 38945. Converged with a last mu above 1: 8 (37, 83,
 
 Also tried 2026-11-24 (a review's r/I = 1e4 vehicle stops at 2.6x the
 optimum, the exact Hessian needing mu near 1e11): switching to the convex
-model once mu passes 1e10 instead of mu_max = 1e20. That problem then
+model once mu passes 1e10 instead of mu_max = 1e20 (a modified build, not
+committed; costs compared problem by problem). That problem then
 converges in 36 iterations, and 1e6 or 1e8 do the same; on these 300,
 1e10 ended 14 solves higher (by up to 9.6e-2 relative) and 6 lower (up to
 4.1e-1), 1e6 ended 32 higher and 25 lower: other local optima, not a
 better rule; kept at 1e20.
 
-Measured 2026-11-24 with "solver": {"method": "ddp"} on every problem
-(the dynamics' second derivatives kept): converged 295, max_iterations 5
-(iLQR: 256 / 44), iterations 26198 against 38946; 199 costs within 1e-6
+Measured 2026-11-24 with METHOD ddp (the dynamics' second derivatives
+kept): converged 295, max_iterations 5 (iLQR: 256 / 44), iterations 26198
+against 38946; compared problem by problem (a one-off script), 199 costs within 1e-6
 of iLQR's, 61 lower, 40 higher (other local optima, from -99.9% to
 +127%). Not this script's default: it measures the service's default.
 
@@ -116,6 +119,8 @@ def problem(rng: random.Random) -> dict:
 
 def main() -> int:
     binary, count, seed = sys.argv[1], int(sys.argv[2]), int(sys.argv[3])
+    method = sys.argv[4] if len(sys.argv) > 4 else None
+    iterations = 0
     rng = random.Random(seed)
     statuses = collections.Counter()
     suspicious = []
@@ -123,7 +128,10 @@ def main() -> int:
     with tempfile.TemporaryDirectory() as tmp:
         out = os.path.join(tmp, "result.json")
         for i in range(count):
-            run = subprocess.run([binary, "solve", "-", "-o", out], input=json.dumps(problem(rng)),
+            p = problem(rng)
+            if method:
+                p["solver"] = {"method": method}
+            run = subprocess.run([binary, "solve", "-", "-o", out], input=json.dumps(p),
                                  capture_output=True, text=True)
             if run.returncode != 0:
                 statuses["error"] += 1
@@ -131,13 +139,14 @@ def main() -> int:
             with open(out) as f:
                 r = json.load(f)
             statuses[r["status"]] += 1
+            iterations += r["iterations"]
             mus = [row["regularization"] for row in r["trace"]]
             if r["status"] == "converged" and mus and mus[-1] > 1:
                 suspicious.append((i, round(mus[-1], 3), r["iterations"]))
             if r.get("convexified_after_iteration") is not None:
                 convexified.append((i, r["status"], r["convexified_after_iteration"], r["iterations"],
                                     f"{r['cost'] / r['initial_cost']:.2e}"))
-    print(dict(statuses))
+    print(dict(statuses), "iterations", iterations)
     print("converged with a last regularisation above 1 (problem, mu, iterations):", suspicious)
     print("fell back to the convex model (problem, status, after iteration, iterations, cost/initial):",
           convexified)
