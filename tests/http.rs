@@ -1578,8 +1578,9 @@ async fn body_framing_and_coding_edge_cases() {
 }
 
 /// What the HTTP layer answers itself, before any route runs, is what the
-/// spec says: an empty 400 for broken framing and an empty 431 for too many
-/// header fields, each followed by a closed connection (so a client never
+/// spec says: an empty 400 for broken framing, an empty 414 for a request
+/// target of 65535 bytes or more (65534 still reaches the route) and an
+/// empty 431 for too many header fields, each followed by a closed connection (so a client never
 /// waits on a half-read request).
 #[tokio::test]
 async fn requests_the_http_layer_rejects_get_the_documented_status() {
@@ -1591,15 +1592,30 @@ async fn requests_the_http_layer_rejects_get_the_documented_status() {
             "400",
         ),
         (format!("GET /healthz HTTP/1.1\r\nHost: x\r\n{many}\r\n"), "431"),
+        (format!("GET {} HTTP/1.1\r\nHost: x\r\n\r\n", target(65_535)), "414"),
     ] {
         let answer = raw_exchange(s.addr, request.as_bytes()).await;
         assert!(answer.starts_with(&format!("HTTP/1.1 {status}")), "{answer}");
         assert!(answer.contains("content-length: 0"), "{answer}");
     }
+    let below = format!(
+        "GET {} HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\r\n",
+        target(65_534)
+    );
+    let answer = raw_exchange(s.addr, below.as_bytes()).await;
+    assert!(answer.starts_with("HTTP/1.1 200"), "{answer}");
     let spec: Value = s.get("/openapi.json").await.json().await.unwrap();
-    assert!(spec["paths"]["/solve"]["post"]["responses"]["431"].is_object());
+    for status in ["414", "431"] {
+        assert!(spec["paths"]["/solve"]["post"]["responses"][status].is_object());
+    }
     let info = spec["info"]["description"].as_str().unwrap();
     assert!(info.contains("more than 100 header fields"), "{info}");
+    assert!(info.contains("65535 bytes or more is 414"), "{info}");
+}
+
+/// `/healthz?aaa…`: a request target of exactly `len` bytes.
+fn target(len: usize) -> String {
+    format!("/healthz?{}", "a".repeat(len - "/healthz?".len()))
 }
 
 /// An error answer echoes a huge key or string once (the exact pointer in

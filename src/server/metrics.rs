@@ -7,7 +7,7 @@
 //!   reached a route, by the status of its answer: 500 for a handler that
 //!   panicked, and `499` for a request whose client left before its answer
 //!   (its solve counts as `cancelled` below). Not counted: what hyper
-//!   rejects before any route runs (400 for broken framing, 431);
+//!   rejects before any route runs (400 for broken framing, 414, 431);
 //! * `solves_total{status}`, counter, by solve status (`converged`, …); a
 //!   solve withdrawn from the queue because its client left counts as
 //!   `cancelled`;

@@ -37,7 +37,8 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
                        on every route: an unknown path is 404 and a wrong method 405. \
                        Only requests the HTTP layer itself cannot parse get an empty body \
                        and a closed connection: broken framing (a malformed request line or \
-                       `Content-Length`) is 400; more than 100 header fields, or a request \
+                       `Content-Length`) is 400; a request target (path and query) of \
+                       65535 bytes or more is 414; more than 100 header fields, or a request \
                        head over about 400 KiB, is 431."
     ),
     tags(
@@ -123,8 +124,8 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
 
 /// Declares `x-request-id` on every response of every operation, since the
 /// middleware sets it on all of them: a generated client can then read it
-/// without knowing it from the prose. Not on 431, which the HTTP layer
-/// answers before any middleware runs (nor on its framing 400s, which
+/// without knowing it from the prose. Not on 414 and 431, which the HTTP
+/// layer answers before any middleware runs (nor on its framing 400s, which
 /// share the 400 entry with ours). Responses given by reference (none
 /// today) are left alone.
 fn with_request_id_header(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
@@ -152,7 +153,7 @@ fn with_request_id_header(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi
         .flatten()
         {
             for (status, response) in &mut operation.responses.responses {
-                if let (false, RefOr::T(response)) = (status == "431", response) {
+                if let (false, RefOr::T(response)) = (is_http_layer_status(status), response) {
                     response
                         .headers
                         .insert("x-request-id".into(), header.clone().into());
@@ -161,6 +162,12 @@ fn with_request_id_header(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi
         }
     }
     spec
+}
+
+/// The statuses hyper answers itself, before any middleware or route runs
+/// (empty body, no `x-request-id`, not in `/metrics`).
+fn is_http_layer_status(status: &str) -> bool {
+    matches!(status, "414" | "431")
 }
 
 /// The spec as this server serves it: the limits its configuration sets
@@ -500,6 +507,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Content-Type is not JSON (`application/json` or `application/*+json`), names a charset other than UTF-8, or the body is compressed", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
+        (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
         (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
