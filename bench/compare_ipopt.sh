@@ -8,7 +8,8 @@
 #    solver -- seed_solve`), median of 100 solves each: `reused_solver`
 #    (warm workspace) and `new_solver` (a fresh Solver per solve, as the
 #    service does).
-# 2. Rust cost: `target/release/ilqr-service solve -o FILE` (the seed).
+# 2. Rust cost: `ilqr-service solve -o FILE` (the seed; the release binary
+#    in the cargo target directory, which follows CARGO_TARGET_DIR).
 # 3. IPOPT: `bench/casadi_ipopt.py --json --repeat $REPEAT` in the venv
 #    .venv-bench (created from bench/requirements.txt if missing): median
 #    wall time of opti.solve() and the cost of its controls re-rolled out.
@@ -22,6 +23,9 @@
 set -euo pipefail
 
 cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
+# shellcheck source=scripts/lib.sh
+. scripts/lib.sh
+BIN="$(target_dir)/release/ilqr-service" # honours CARGO_TARGET_DIR
 REPEAT="${REPEAT:-10}"
 VENV=.venv-bench
 tmp="$(mktemp -d)"
@@ -40,7 +44,7 @@ cargo bench -p ilqr --bench solver --no-run --quiet 2>/dev/null
 echo "running: cargo bench -p ilqr --bench solver -- seed_solve" >&2
 cargo bench -p ilqr --bench solver --quiet -- seed_solve >"$tmp/divan.txt" 2>/dev/null
 cat "$tmp/divan.txt" >&2
-target/release/ilqr-service solve -o "$tmp/rust.json" >/dev/null
+"$BIN" solve -o "$tmp/rust.json" >/dev/null
 
 echo "running: $VENV/bin/python bench/casadi_ipopt.py --json --repeat $REPEAT" >&2
 "$VENV/bin/python" bench/casadi_ipopt.py --json --repeat "$REPEAT" >"$tmp/ipopt.json"

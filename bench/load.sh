@@ -48,7 +48,9 @@ FULL_ROUNDS="${FULL_ROUNDS:-2}"
 OVERLOAD_DURATION="${OVERLOAD_DURATION:-20}"
 CONNS="${CONNS:-8}"
 OVERLOAD_CONNS="${OVERLOAD_CONNS:-16}"
-BIN=target/release/ilqr-service
+# shellcheck source=scripts/lib.sh
+. scripts/lib.sh
+BIN="$(target_dir)/release/ilqr-service" # honours CARGO_TARGET_DIR
 LUA=bench/post_seed.lua
 
 tmp="$(mktemp -d)"

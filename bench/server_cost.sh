@@ -24,7 +24,9 @@ cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
 ROUNDS="${ROUNDS:-3}"
 DURATION="${DURATION:-6}"
 BODY="${BODY:-lean}"
-BIN=target/release/ilqr-service
+# shellcheck source=scripts/lib.sh
+. scripts/lib.sh
+BIN="$(target_dir)/release/ilqr-service" # honours CARGO_TARGET_DIR
 tmp="$(mktemp -d)"
 SERVER_PID=""
 cleanup() {
