@@ -957,11 +957,13 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     // one given, checked like any other.
     let mut shapes = Checker::default();
     let mut path = String::new();
+    let mut objects = 0;
     let mut json = serde_json::Deserializer::from_slice(bytes);
     let mut value = serde::de::DeserializeSeed::deserialize(
         ValueNoting {
             path: &mut path,
             checker: &mut shapes,
+            objects: &mut objects,
         },
         &mut json,
     )
@@ -1018,6 +1020,20 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
 /// costs at most that much more than the parse it needs anyway (tens of ms
 /// for a 4 MiB body).
 pub const RETRY_BYTES: usize = 1 << 20;
+
+/// Most JSON objects a document may hold; reading stops at the next one.
+/// A problem holds at most 105 (the document, `model`, `weights`,
+/// `solver`, `output` and one per obstacle), so this leaves ten times that
+/// for shapes to come. Why a bound at all: `serde_json::Value` stores an
+/// object as a B-tree whose first node takes about 650 bytes whatever it
+/// holds, so a 4 MB body of `{"a":1}` built 363 MiB (90 times its text,
+/// against at most about 25 times for arrays, strings and numbers), and
+/// the allocator kept most of it after the answer.
+pub const MAX_OBJECTS: usize = 1024;
+
+/// The start of the serde error [`ValueNoting`] raises past
+/// [`MAX_OBJECTS`], recognised by [`unreadable`].
+const TOO_MANY_OBJECTS: &str = "too many JSON objects";
 
 /// A serde error, as a field error with its pointer and a detail in the
 /// schema's words rather than Rust's.
@@ -1260,6 +1276,33 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
             member,
             "nested 128 levels deep or more (the document is level 1); a problem nests at most 4",
         )
+    } else if message.starts_with(TOO_MANY_OBJECTS) {
+        // The path is the first object past the bound. Among obstacles,
+        // too many obstacles is the error to report, as it would be for
+        // fewer (with a lower bound on the count, reading having stopped).
+        let obstacle = path
+            .strip_prefix("/obstacles/")
+            .and_then(|rest| rest.parse::<usize>().ok());
+        let error = match obstacle {
+            Some(index) => FieldError {
+                pointer: "/obstacles".to_owned(),
+                detail: format!(
+                    "at most {MAX_OBSTACLES} obstacles, got more than {index} (reading stopped \
+                     at obstacle {index}, the document's JSON object number {})",
+                    MAX_OBJECTS + 1
+                ),
+            },
+            None => FieldError {
+                pointer: path.to_owned(),
+                detail: format!(
+                    "the document holds more than {MAX_OBJECTS} JSON objects (this is the next \
+                     one); a problem holds at most {} (one per obstacle, and the document, \
+                     `model`, `weights`, `solver` and `output`)",
+                    MAX_OBSTACLES + 5
+                ),
+            },
+        };
+        return ParseError::Shape(Shapes::one(error));
     } else if message.starts_with("lone leading surrogate")
         || message.starts_with("unexpected end of hex escape")
     {
@@ -1344,11 +1387,14 @@ fn replace_spans(bytes: &[u8], spans: &[std::ops::Range<usize>], with: &[u8]) ->
 /// and reports the keys that repeat within their object to `checker`
 /// (`Value` alone keeps the last silently). It reads on after a repeat, so a
 /// syntax error anywhere still wins (400 over 422). Nesting is bounded by
-/// serde_json's recursion limit (128), like any parse.
+/// serde_json's recursion limit (128), like any parse, and the number of
+/// objects by [`MAX_OBJECTS`].
 struct ValueNoting<'a> {
     /// The pointer of the value being read.
     path: &'a mut String,
     checker: &'a mut Checker,
+    /// Objects begun so far in the whole document.
+    objects: &'a mut usize,
 }
 
 impl<'de> serde::de::DeserializeSeed<'de> for ValueNoting<'_> {
@@ -1367,6 +1413,10 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
     }
 
     fn visit_map<A: serde::de::MapAccess<'de>>(self, mut map: A) -> Result<Self::Value, A::Error> {
+        *self.objects += 1;
+        if *self.objects > MAX_OBJECTS {
+            return Err(serde::de::Error::custom(TOO_MANY_OBJECTS));
+        }
         let mut object = serde_json::Map::new();
         // The keys of this object already reported as repeated: each once,
         // however often it repeats ("a" 600 000 times under a megabyte key
@@ -1379,6 +1429,7 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             let value = map.next_value_seed(ValueNoting {
                 path: self.path,
                 checker: self.checker,
+                objects: self.objects,
             })?;
             if object.contains_key(&key) && reported.insert(key.clone()) {
                 self.checker.repeat(self.path);
@@ -1398,6 +1449,7 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
             let item = seq.next_element_seed(ValueNoting {
                 path: self.path,
                 checker: self.checker,
+                objects: self.objects,
             })?;
             self.path.truncate(len);
             match item {

@@ -1,7 +1,9 @@
 //! Every kind of bad input gets an error naming the field (a JSON pointer)
 //! and what was expected, and nothing panics.
 
-use ilqr_service::problem::{Limits, MAX_CONTROL, ParseError, ProblemSpec, parse};
+use ilqr_service::problem::{
+    Limits, MAX_CONTROL, MAX_OBJECTS, MAX_OBSTACLES, ParseError, ProblemSpec, parse,
+};
 use ilqr_service::solve::solve;
 use proptest::prelude::*;
 use serde_json::{Value, json};
@@ -277,6 +279,58 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
             other => panic!("{other:?}"),
         }
     }
+}
+
+/// A document may hold at most `MAX_OBJECTS` JSON objects: past that,
+/// reading stops with an error at the next one (a 4 MB body of `{"a":1}`
+/// built 363 MiB before the bound). Among obstacles it is told as too many
+/// obstacles. The largest valid problem is far inside the bound, and a
+/// syntax error later in the document still wins.
+#[test]
+fn a_document_holds_a_bounded_number_of_objects() {
+    let first = |doc: &str| match parse(doc.as_bytes()) {
+        Err(ParseError::Shape(s)) => s.first().clone(),
+        other => panic!("{other:?}"),
+    };
+    let objects = |n: usize| vec!["{\"a\": 1}"; n].join(",");
+    let f = first(&format!("{{\"foo\": [{}]}}", objects(2 * MAX_OBJECTS)));
+    assert_eq!(f.pointer, format!("/foo/{}", MAX_OBJECTS - 1));
+    assert!(
+        f.detail.starts_with(&format!(
+            "the document holds more than {MAX_OBJECTS} JSON objects (this is the next one)"
+        )),
+        "{}",
+        f.detail
+    );
+    // Exactly at the bound (the document is one): read, and the unknown
+    // member is the error.
+    let f = first(&format!("{{\"foo\": [{}]}}", objects(MAX_OBJECTS - 1)));
+    assert_eq!(f.pointer, "/foo");
+    let obstacles =
+        |n: usize| json!({"obstacles": vec![json!({"center": [1, 1], "weight": 1}); n]});
+    let f = first(&obstacles(2 * MAX_OBJECTS).to_string());
+    assert_eq!(f.pointer, "/obstacles");
+    assert_eq!(
+        f.detail,
+        format!(
+            "at most 100 obstacles, got more than {0} (reading stopped at obstacle {0}, \
+             the document's JSON object number {1})",
+            MAX_OBJECTS - 1,
+            MAX_OBJECTS + 1
+        )
+    );
+    rejects(obstacles(MAX_OBJECTS - 1), "/obstacles");
+    let mut largest = obstacles(MAX_OBSTACLES);
+    largest["model"] = json!({"mass": 1});
+    largest["weights"] = json!({"control": [1, 1]});
+    largest["solver"] = json!({"max_iterations": 1});
+    largest["output"] = json!({"trace": false});
+    assert_eq!(errors(&largest), Vec::<String>::new());
+    let broken = format!("{{\"foo\": [{}], \"x\": }}", objects(2 * MAX_OBJECTS));
+    assert!(matches!(
+        parse(broken.as_bytes()),
+        Err(ParseError::Syntax(_))
+    ));
 }
 
 #[test]

@@ -22,7 +22,9 @@
 //! Not counted: the parse itself. [`crate::problem::parse`] builds a
 //! `serde_json::Value` of the document first, up to ~25 times the text for
 //! a body that is one long array of short numbers (a 4 MB body: 112 MB at
-//! its peak), and takes about 0.1 s for 4 MB. A body over
+//! its peak), and takes about 0.1 s for 4 MB. (Objects cost more, ~650
+//! bytes each however small, which is why a document may hold at most
+//! [`crate::problem::MAX_OBJECTS`] of them.) A body over
 //! [`INLINE_PARSE_BYTES`] is therefore parsed off the runtime's thread
 //! (`block_in_place`: the runtime moves its other tasks to another thread
 //! meanwhile), so a client sending megabytes does not stall every other
