@@ -240,6 +240,7 @@ pub struct SolverSpec {
     /// `ilqr` (default: the paper's algorithm) or `ddp` (the dynamics'
     /// second derivatives kept in the backward pass; fewer iterations where
     /// iLQR crawls, see the README's Limits).
+    #[serde(deserialize_with = "de_name")]
     #[schema(default = "ilqr")]
     pub method: Method,
 }

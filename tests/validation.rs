@@ -569,15 +569,27 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         json!({"integrator": {"euler": null}}),
         json!({"integrator": ["euler"]}),
         json!({"model": {"type": {"quadrotor_2d": null}}}),
+        json!({"solver": {"method": {"ddp": null}}}),
+        json!({"solver": {"method": {"ddp": 1}}}),
+        json!({"solver": {"method": null}}),
+        json!({"solver": {"method": 1}}),
     ] {
         let (pointer, detail) = shape_error(doc.clone());
         assert!(
-            ["/integrator", "/model/type"].contains(&pointer.as_str()),
+            ["/integrator", "/model/type", "/solver/method"].contains(&pointer.as_str()),
             "{doc}: {pointer}"
         );
         assert!(detail.ends_with("expected a string"), "{doc}: {detail}");
     }
     assert!(errors(&json!({"integrator": "euler", "model": {"type": "quadrotor_2d"}})).is_empty());
+    assert!(errors(&json!({"solver": {"method": "ddp"}})).is_empty());
+    let (pointer, detail) = shape_error(json!({"solver": {"method": {"ddp": 1}}}));
+    assert_eq!(pointer, "/solver/method");
+    assert_eq!(
+        errors(&json!({"solver": {"method": {"ddp": 1}}})),
+        ["/solver/method"],
+        "one error for one value: {detail}"
+    );
     // Nested structs are objects only: serde alone filled them from arrays
     // in field order, so `{"solver": [5]}` set max_iterations to 5.
     for (doc, pointer) in [
