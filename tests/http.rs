@@ -553,6 +553,34 @@ async fn a_415_says_what_was_received() {
                 .to_owned(),
         ),
         (
+            // Every field line counts, not only the first.
+            vec![
+                ("content-type", "application/json".into()),
+                ("content-encoding", "identity".into()),
+                ("content-encoding", "gzip".into()),
+            ],
+            "the body is compressed (Content-Encoding: `gzip`); send it uncompressed, as this \
+             service reads no compressed requests"
+                .to_owned(),
+        ),
+        (
+            vec![
+                ("content-type", "application/json".into()),
+                ("content-type", "text/plain".into()),
+            ],
+            "the request has 2 Content-Type header fields: send one, `Content-Type: \
+             application/json`, with the problem as UTF-8 JSON"
+                .to_owned(),
+        ),
+        (
+            // A structured syntax suffix needs a name before it.
+            vec![("content-type", "application/+json".into())],
+            "the Content-Type is `application/+json`, which is not JSON (application/json or \
+             application/*+json); send the problem as UTF-8 JSON with \
+             `Content-Type: application/json`"
+                .to_owned(),
+        ),
+        (
             vec![("content-type", long.clone())],
             format!(
                 "the Content-Type is `{}...`, which is not JSON (application/json or \
@@ -1550,7 +1578,9 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
 }
 
 /// `Content-Encoding: IDENTITY` is identity (codings are case-insensitive),
-/// and a body whose chunked framing is broken is "unreadable", not "not
+/// a transfer coding besides `chunked` is a compressed body (hyper undoes
+/// only `chunked`: `gzip, chunked` reached the parser as gzip bytes), and
+/// a body whose chunked framing is broken is "unreadable", not "not
 /// JSON".
 #[tokio::test]
 async fn body_framing_and_coding_edge_cases() {
@@ -1564,6 +1594,25 @@ async fn body_framing_and_coding_edge_cases() {
         .await
         .unwrap();
     assert_eq!(res.status(), 200);
+
+    for (coding, status) in [("gzip, chunked", "415"), ("Chunked", "200")] {
+        let request = format!(
+            "POST /solve HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\
+             Content-Type: application/json\r\nTransfer-Encoding: {coding}\r\n\r\n\
+             2\r\n{{}}\r\n0\r\n\r\n"
+        );
+        let answer = raw_exchange(s.addr, request.as_bytes()).await;
+        assert!(
+            answer.starts_with(&format!("HTTP/1.1 {status}")),
+            "{answer}"
+        );
+        if status == "415" {
+            assert!(
+                answer.contains("the body is compressed (Transfer-Encoding: `gzip, chunked`)"),
+                "{answer}"
+            );
+        }
+    }
 
     let answer = raw_exchange(
         s.addr,

@@ -383,20 +383,49 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
 /// fix differs: `curl -d` without `-H` sends a form's media type, a
 /// client library may add a charset or compress the body.
 fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
-    if let Some(coding) = headers
-        .get(header::CONTENT_ENCODING)
-        .filter(|v| !v.as_bytes().eq_ignore_ascii_case(b"identity"))
-    {
-        return Some(format!(
-            "the body is compressed (Content-Encoding: {}); send it uncompressed, \
-             as this service reads no compressed requests",
-            shown(coding.as_bytes())
-        ));
+    // Every field line and every list member counts: the first line alone
+    // let `identity` then `gzip` through to a "not UTF-8" 400. hyper
+    // undoes `chunked` only, so any other transfer coding (`gzip,
+    // chunked`) also leaves the body compressed.
+    for (name, ignored) in [
+        (header::CONTENT_ENCODING, "identity"),
+        (header::TRANSFER_ENCODING, "chunked"),
+    ] {
+        let compressed = headers.get_all(&name).iter().find(|v| {
+            v.as_bytes()
+                .split(|&b| b == b',')
+                .map(<[u8]>::trim_ascii)
+                .any(|coding| {
+                    !coding.is_empty() && !coding.eq_ignore_ascii_case(ignored.as_bytes())
+                })
+        });
+        if let Some(coding) = compressed {
+            let name = if name == header::CONTENT_ENCODING {
+                "Content-Encoding"
+            } else {
+                "Transfer-Encoding"
+            };
+            return Some(format!(
+                "the body is compressed ({name}: {}); send it uncompressed, \
+                 as this service reads no compressed requests",
+                shown(coding.as_bytes())
+            ));
+        }
     }
     const SEND: &str = "send the problem as UTF-8 JSON with `Content-Type: application/json`";
-    let Some(value) = headers.get(header::CONTENT_TYPE) else {
+    let mut types = headers.get_all(header::CONTENT_TYPE).iter();
+    let Some(value) = types.next() else {
         return Some(format!("the request has no Content-Type; {SEND}"));
     };
+    // RFC 9110 §5.3: Content-Type is a singleton; which one to believe is
+    // a guess (the first was taken, `text/plain` after it ignored).
+    if types.next().is_some() {
+        return Some(format!(
+            "the request has {} Content-Type header fields: send one, \
+             `Content-Type: application/json`, with the problem as UTF-8 JSON",
+            headers.get_all(header::CONTENT_TYPE).iter().count()
+        ));
+    }
     let Ok(ct) = value.to_str() else {
         return Some(format!(
             "the Content-Type {} is not plain ASCII text; {SEND}",
@@ -408,7 +437,10 @@ fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
     // `application/*+json` too (RFC 6839 structured syntax suffix), as
     // axum's `Json` takes it.
     let json = essence == "application/json"
-        || (essence.starts_with("application/") && essence.ends_with("+json"));
+        || essence
+            .strip_prefix("application/")
+            .and_then(|subtype| subtype.strip_suffix("+json"))
+            .is_some_and(|name| !name.is_empty());
     if essence == "application/x-www-form-urlencoded" {
         return Some(format!(
             "the Content-Type is {}, a form, which is what `curl -d` sends unless \
@@ -505,7 +537,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Content-Type is not JSON (`application/json` or `application/*+json`), names a charset other than UTF-8, or the body is compressed", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Content-Type is missing, given twice, not JSON (`application/json` or `application/*+json`) or names a charset other than UTF-8; or the body is compressed (a Content-Encoding, or a Transfer-Encoding other than `chunked`)", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
         (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
