@@ -655,6 +655,18 @@ async fn a_404_says_what_was_asked_for_and_what_was_meant() {
             "/docs/nope.js".to_owned(),
             format!("no route for GET `/docs/nope.js`. {LISTED}"),
         ),
+        // Swagger UI served its page here, where the page's relative link
+        // to the spec leads to a 404.
+        (
+            "GET",
+            "/docs//".to_owned(),
+            format!("no route for GET `/docs//`. Did you mean /docs/? {LISTED}"),
+        ),
+        (
+            "GET",
+            "/docs/a/index.css".to_owned(),
+            format!("no route for GET `/docs/a/index.css`. {LISTED}"),
+        ),
         (
             "GET",
             long.clone(),

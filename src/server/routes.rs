@@ -980,7 +980,11 @@ async fn not_found(method: axum::http::Method, uri: axum::http::Uri) -> ApiError
     not_found_error(&method, uri.path())
 }
 
-/// Three fixes to Swagger UI's routes. Its `/docs/{*rest}` route answers an
+/// Four fixes to Swagger UI's routes. Its files all sit directly under
+/// `/docs/`, but its `/docs/{*rest}` route serves the page for `/docs//`
+/// too, where the page's relative link to the spec (`../openapi.json`)
+/// resolves to `/docs/openapi.json`, a 404: any further `/` is a 404 here,
+/// naming `/docs/`. Its `/docs/{*rest}` route answers an
 /// unknown file with an empty 404 of its own, before the router's fallback
 /// can; make it ours (with the request's method and path, as the
 /// fallback's). Its `/docs` redirect says `Location: /docs/`,
@@ -990,6 +994,12 @@ async fn not_found(method: axum::http::Method, uri: axum::http::Uri) -> ApiError
 /// UI", which says nothing in a row of browser tabs.
 async fn docs_fixes(req: Request, next: axum::middleware::Next) -> Response {
     let (method, path) = (req.method().clone(), req.uri().path().to_owned());
+    if path
+        .strip_prefix("/docs/")
+        .is_some_and(|file| file.contains('/'))
+    {
+        return not_found_error(&method, &path).into_response();
+    }
     let mut res = next.run(req).await;
     if res.status() == StatusCode::NOT_FOUND {
         return not_found_error(&method, &path).into_response();
