@@ -719,11 +719,18 @@ impl<'de> Visitor<'de> for Count {
             Ok(v as u64)
         } else if v > MAX_EXACT {
             Err(E::custom(format_args!(
-                "{v:e} is too large: expected {}",
+                "{} is too large: expected {}",
+                num(v),
                 self.0
             )))
         } else {
-            Err(E::invalid_value(serde::de::Unexpected::Float(v), &self))
+            // serde's own message, with the number written as every other
+            // message writes it (serde wrote -1e30 as `-1e+30`).
+            Err(E::custom(format_args!(
+                "invalid value: number {}, expected {}",
+                num(v),
+                self.0
+            )))
         }
     }
 }

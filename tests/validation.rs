@@ -631,6 +631,13 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         shape_error(json!({"horizon": 1e20})).1,
         "1e20 is too large: expected an integer from 1 to the maximum horizon (10000 unless configured lower)"
     );
+    // Numbers are written alike on both sides of the range (serde wrote the
+    // negative one `-1e+30`).
+    assert_eq!(
+        shape_error(json!({"horizon": -1e30})).1,
+        "invalid value: number -1e30, expected an integer from 1 to the maximum horizon \
+         (10000 unless configured lower)"
+    );
     // A missing field is pointed at, not its parent object.
     assert_eq!(
         shape_error(json!({"obstacles": [{"weight": 1}, {"center": [0, 0]}]})),

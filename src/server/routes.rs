@@ -543,7 +543,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
         (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
-            headers(("Retry-After" = u64, description = "Seconds to wait before retrying"))),
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1)"))),
     )
 )]
 async fn solve(
