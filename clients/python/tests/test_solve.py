@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import pytest
@@ -202,6 +203,29 @@ def test_time_limit_returns_best_trajectory(client: Client) -> None:
 def test_request_id_is_sent_and_echoed(client: Client) -> None:
     result = client.solve({"horizon": 5, "output": {"gains": False, "trace": False}}, request_id="client-test-1")
     assert result.request_id == "client-test-1"
+
+
+def test_server_timing_is_read_into_the_result(seed_result: SolveResult) -> None:
+    # The header's milliseconds by name: what the time budget covers (solve)
+    # and what it does not (queue, encode), without a raw request.
+    timing = seed_result.server_timing
+    assert timing is not None and set(timing) == {"queue", "solve", "encode"}, timing
+    assert all(value >= 0 for value in timing.values()), timing
+    assert timing["solve"] == pytest.approx(seed_result.solve_time_ms, abs=1e-3)
+    assert timing["queue"] == pytest.approx(seed_result.queue_time_ms, abs=1e-3)
+    # Not part of equality, as request_id: a timing is no property of the solution.
+    assert dataclasses.replace(seed_result, server_timing=None, request_id=None) == seed_result
+
+
+def test_server_timing_parsing_skips_what_it_cannot_read() -> None:
+    from ilqr_client.models import _parse_server_timing
+
+    assert _parse_server_timing(None) is None
+    assert _parse_server_timing("") == {}
+    assert _parse_server_timing('queue;dur=0.5, miss, solve;desc="x";dur="1.25", bad;dur=abc, ;dur=3') == {
+        "queue": 0.5,
+        "solve": 1.25,
+    }
 
 
 def test_numpy_problem_values_and_as_numpy(client: Client, seed_result: SolveResult) -> None:

@@ -40,7 +40,7 @@ import requests
 
 from ._version import __version__
 from .errors import OverloadedError, ShuttingDownError, UnexpectedResponseError, error_from_response
-from .models import Problem, SolveResult, _non_finite, to_json_value
+from .models import Problem, SolveResult, _non_finite, _parse_server_timing, to_json_value
 
 __all__ = ["Client", "ProblemLike", "TimeoutSpec"]
 
@@ -276,7 +276,11 @@ class Client:
         response = self._request("POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout)
         data = self._json(response)
         try:
-            return SolveResult.from_dict(data, request_id=response.headers.get("x-request-id"))
+            return SolveResult.from_dict(
+                data,
+                request_id=response.headers.get("x-request-id"),
+                server_timing=_parse_server_timing(response.headers.get("server-timing")),
+            )
         except (ValueError, TypeError) as exc:
             raise self._unexpected(response, f"malformed solve result: {exc}") from exc
 

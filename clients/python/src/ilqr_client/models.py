@@ -688,6 +688,10 @@ class SolveResult:
             ``converged``, which the exact Hessian confirms); ``False`` when
             the exact Hessian took over again and gave the gains.
         request_id: The ``x-request-id`` of the answer (not part of equality).
+        server_timing: The answer's ``Server-Timing`` header, in ms by name:
+            ``queue``, ``solve`` and ``encode`` (serialising and compressing
+            the answer, which the time budget does not cover); ``None`` for a
+            result not read from an answer (not part of equality).
     """
 
     status: str
@@ -705,10 +709,16 @@ class SolveResult:
     convexified_after_iteration: Optional[int] = None
     convex_model_at_end: Optional[bool] = None
     request_id: Optional[str] = field(default=None, compare=False)
+    server_timing: Optional[Dict[str, float]] = field(default=None, compare=False)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], request_id: Optional[str] = None) -> "SolveResult":
-        """Parse a solve answer.
+    def from_dict(
+        cls,
+        data: Mapping[str, Any],
+        request_id: Optional[str] = None,
+        server_timing: Optional[Dict[str, float]] = None,
+    ) -> "SolveResult":
+        """Parse a solve answer (its body; the two headers are passed apart).
 
         Raises:
             ValueError: if a required member is missing or has the wrong type.
@@ -744,6 +754,7 @@ class SolveResult:
                 None if convex_at_end is None else _bool(convex_at_end, "/convex_model_at_end")
             ),
             request_id=request_id,
+            server_timing=server_timing,
         )
 
     def __repr__(self) -> str:
@@ -811,3 +822,24 @@ class SolveResult:
             arrays["cost"] = np.asarray(self.cost_history, dtype=float)
         return arrays
 
+
+def _parse_server_timing(header: Optional[str]) -> Optional[Dict[str, float]]:
+    """The durations of a ``Server-Timing`` header, in ms by metric name.
+
+    ``"queue;dur=0.02, solve;dur=0.35"`` gives ``{"queue": 0.02, "solve":
+    0.35}``. A metric without a readable ``dur`` is left out; ``None`` when
+    the header is absent.
+    """
+    if header is None:
+        return None
+    timing: Dict[str, float] = {}
+    for metric in header.split(","):
+        name, *params = (part.strip() for part in metric.split(";"))
+        for param in params:
+            key, _, value = param.partition("=")
+            if name and key.strip().lower() == "dur":
+                try:
+                    timing[name] = float(value.strip().strip('"'))
+                except ValueError:
+                    pass
+    return timing
