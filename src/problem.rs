@@ -1285,12 +1285,14 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
             "nested 128 levels deep or more (the document is level 1); a problem nests at most 4",
         )
     } else if message.starts_with(TOO_MANY_OBJECTS) {
-        // The path is the first object past the bound. Among obstacles,
-        // too many obstacles is the error to report, as it would be for
-        // fewer (with a lower bound on the count, reading having stopped).
+        // The path is the first object past the bound. Past the hundredth
+        // obstacle, too many obstacles is the error to report, as it would
+        // be for fewer (with a lower bound on the count, reading having
+        // stopped); before it, the surplus objects are elsewhere.
         let obstacle = path
             .strip_prefix("/obstacles/")
-            .and_then(|rest| rest.parse::<usize>().ok());
+            .and_then(|rest| rest.parse::<usize>().ok())
+            .filter(|&index| index >= MAX_OBSTACLES);
         let error = match obstacle {
             Some(index) => FieldError {
                 pointer: "/obstacles".to_owned(),

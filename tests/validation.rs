@@ -319,7 +319,32 @@ fn a_document_holds_a_bounded_number_of_objects() {
             MAX_OBJECTS + 1
         )
     );
-    rejects(obstacles(MAX_OBJECTS - 1), "/obstacles");
+    // Below the bound, the usual error with the exact count.
+    let limits = Limits::default();
+    let detail = match parse(obstacles(MAX_OBJECTS - 1).to_string().as_bytes()) {
+        Ok(spec) => spec.validate(&limits).unwrap_err().errors[0].detail.clone(),
+        other => panic!("{other:?}"),
+    };
+    assert_eq!(
+        detail,
+        format!("at most 100 obstacles, got {}", MAX_OBJECTS - 1)
+    );
+    // Surplus objects elsewhere, the bound reached among the first hundred
+    // obstacles: not told as too many obstacles.
+    let mut doc = obstacles(50);
+    doc["foo"] = json!(vec![json!({}); 1000]);
+    let text = doc.to_string();
+    assert!(
+        text.find("\"foo\"") < text.find("\"obstacles\""),
+        "{text:.40}"
+    );
+    let f = first(&text);
+    assert_eq!(f.pointer, "/obstacles/23");
+    assert!(
+        f.detail.starts_with("the document holds more than"),
+        "{}",
+        f.detail
+    );
     let mut largest = obstacles(MAX_OBSTACLES);
     largest["model"] = json!({"mass": 1});
     largest["weights"] = json!({"control": [1, 1]});

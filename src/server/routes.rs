@@ -37,7 +37,8 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
                        on every route: an unknown path is 404 and a wrong method 405. \
                        Only requests the HTTP layer itself cannot parse get an empty body \
                        and a closed connection: broken framing (a malformed request line or \
-                       `Content-Length`) is 400; a request target (path and query) of \
+                       `Content-Length`, or a Transfer-Encoding that does not end in \
+                       `chunked`) is 400; a request target (path and query) of \
                        65535 bytes or more is 414; more than 100 header fields, or a request \
                        head over about 400 KiB, is 431."
     ),
@@ -384,44 +385,44 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
 /// client library may add a charset or compress the body.
 fn unsupported_media_type(headers: &HeaderMap) -> Option<String> {
     // Every field line and every list member counts: the first line alone
-    // let `identity` then `gzip` through to a "not UTF-8" 400. hyper
-    // undoes `chunked` only, so any other transfer coding (`gzip,
-    // chunked`) also leaves the body compressed.
-    for (name, ignored) in [
-        (header::CONTENT_ENCODING, "identity"),
-        (header::TRANSFER_ENCODING, "chunked"),
-    ] {
-        let compressed = headers.get_all(&name).iter().find(|v| {
+    // let `identity` then `gzip` through to a "not UTF-8" 400.
+    let other_than = |name: header::HeaderName, plain: &'static [u8]| {
+        headers.get_all(name).iter().find(|v| {
             v.as_bytes()
                 .split(|&b| b == b',')
                 .map(<[u8]>::trim_ascii)
-                .any(|coding| {
-                    !coding.is_empty() && !coding.eq_ignore_ascii_case(ignored.as_bytes())
-                })
-        });
-        if let Some(coding) = compressed {
-            let name = if name == header::CONTENT_ENCODING {
-                "Content-Encoding"
-            } else {
-                "Transfer-Encoding"
-            };
-            return Some(format!(
-                "the body is compressed ({name}: {}); send it uncompressed, \
-                 as this service reads no compressed requests",
-                shown(coding.as_bytes())
-            ));
-        }
+                .any(|coding| !coding.is_empty() && !coding.eq_ignore_ascii_case(plain))
+        })
+    };
+    if let Some(coding) = other_than(header::CONTENT_ENCODING, b"identity") {
+        return Some(format!(
+            "the body is compressed (Content-Encoding: {}); send it uncompressed, \
+             as this service reads no compressed requests",
+            shown(coding.as_bytes())
+        ));
+    }
+    // hyper undoes `chunked` only, and answers an empty 400 itself unless
+    // `chunked` comes last; a coding before it (`gzip, chunked`) would
+    // reach the parser undone.
+    if let Some(coding) = other_than(header::TRANSFER_ENCODING, b"chunked") {
+        return Some(format!(
+            "the body has a transfer coding besides chunked (Transfer-Encoding: {}); \
+             send it with `chunked` alone or a Content-Length, as this service \
+             undoes no other transfer coding",
+            shown(coding.as_bytes())
+        ));
     }
     const SEND: &str = "send the problem as UTF-8 JSON with `Content-Type: application/json`";
     let mut types = headers.get_all(header::CONTENT_TYPE).iter();
     let Some(value) = types.next() else {
         return Some(format!("the request has no Content-Type; {SEND}"));
     };
-    // RFC 9110 §5.3: Content-Type is a singleton; which one to believe is
-    // a guess (the first was taken, `text/plain` after it ignored).
-    if types.next().is_some() {
+    // RFC 9110 §5.3: Content-Type is a singleton; which of two different
+    // ones to believe is a guess (the first was taken, `text/plain` after
+    // it ignored). The same one repeated says the same thing.
+    if types.any(|other| other != value) {
         return Some(format!(
-            "the request has {} Content-Type header fields: send one, \
+            "the request has {} different Content-Type header fields: send one, \
              `Content-Type: application/json`, with the problem as UTF-8 JSON",
             headers.get_all(header::CONTENT_TYPE).iter().count()
         ));
@@ -537,7 +538,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
-        (status = 415, description = "Content-Type is missing, given twice, not JSON (`application/json` or `application/*+json`) or names a charset other than UTF-8; or the body is compressed (a Content-Encoding, or a Transfer-Encoding other than `chunked`)", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Content-Type is missing, given twice, not JSON (`application/json` or `application/*+json`) or names a charset other than UTF-8; or the body is compressed (a Content-Encoding other than `identity`, or a transfer coding before `chunked`)", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
         (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
@@ -983,8 +984,8 @@ async fn not_found(method: axum::http::Method, uri: axum::http::Uri) -> ApiError
 /// Four fixes to Swagger UI's routes. Its files all sit directly under
 /// `/docs/`, but its `/docs/{*rest}` route serves the page for `/docs//`
 /// too, where the page's relative link to the spec (`../openapi.json`)
-/// resolves to `/docs/openapi.json`, a 404: any further `/` is a 404 here,
-/// naming `/docs/`. Its `/docs/{*rest}` route answers an
+/// resolves to `/docs/openapi.json`, a 404: any further `/` is a 404 here
+/// (for `/docs//`, "did you mean /docs/"). Its `/docs/{*rest}` route answers an
 /// unknown file with an empty 404 of its own, before the router's fallback
 /// can; make it ours (with the request's method and path, as the
 /// fallback's). Its `/docs` redirect says `Location: /docs/`,
