@@ -36,6 +36,7 @@ mod error;
 mod metrics;
 pub mod pool;
 mod routes;
+mod stall;
 
 use std::collections::HashMap;
 use std::future::Future;
@@ -286,7 +287,8 @@ pub struct Config {
     /// body. A connection that stalls longer is closed (headers) or answered
     /// 408 (body), so slow or stuck clients cannot pile up connections or
     /// hold up a shutdown. 30 s moves the largest body (4 MiB) at 1.12 Mbit/s.
-    /// 1 to 3600.
+    /// Also how long an answer may go without the client reading any of it;
+    /// then the connection is closed and the answer freed. 1 to 3600.
     #[arg(long, env = "ILQR_READ_TIMEOUT_SECS", default_value_t = 30,
           value_parser = parse_read_timeout, allow_negative_numbers = true)]
     pub read_timeout_secs: u64,
@@ -566,7 +568,9 @@ const CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
 /// The accept loop is `axum::serve`'s, plus what that lacks: a header read
 /// timeout (hyper's `header_read_timeout` needs a timer, which
 /// `axum::serve` does not set, so a client that never finished its headers
-/// held its connection forever) and a bound on shutdown. HTTP/1.1 only:
+/// held its connection forever), the same limit on a write that makes no
+/// progress ([`stall::WriteStall`]: a client that never read its answer
+/// held it forever) and a bound on shutdown. HTTP/1.1 only:
 /// hyper's HTTP/2 has no idle or first-request timeout, and hyper-util's
 /// HTTP/1-or-2 detection none either, so a connection that sent nothing, or
 /// the start of the HTTP/2 preface, stayed open forever. (gRPC will want
@@ -633,7 +637,10 @@ pub async fn run(
                     let conn = Builder::new()
                         .timer(TokioTimer::new())
                         .header_read_timeout(read_timeout)
-                        .serve_connection(TokioIo::new(io), service);
+                        .serve_connection(
+                            TokioIo::new(stall::WriteStall::new(io, read_timeout)),
+                            service,
+                        );
                     let mut conn = std::pin::pin!(conn);
                     tokio::select! {
                         _ = conn.as_mut() => return,
