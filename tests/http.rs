@@ -1520,6 +1520,73 @@ async fn a_client_that_stops_reading_its_answer_is_disconnected() {
     );
 }
 
+/// The answers being sent hold at most `--max-inflight-body-bytes` (8 MiB
+/// here): while a client that does not read holds a 4.6 MB answer, the
+/// next large answer is a 503 `overloaded` saying why (its solve ran), a
+/// small one still fits, and once the stalled connection is gone the large
+/// one is answered again.
+#[tokio::test]
+async fn answers_waiting_for_slow_readers_are_bounded() {
+    use tokio::io::AsyncWriteExt;
+    let s = Server::start(Config {
+        max_body_bytes: 1 << 20,
+        max_inflight_body_bytes: Some(8 << 20),
+        ..read_timeout(60)
+    })
+    .await;
+    let large = json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
+                       "output": {"trace": false}});
+    let body = large.to_string();
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut stalled = socket.connect(s.addr).await.unwrap();
+    stalled
+        .write_all(
+            format!(
+                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                 Content-Length: {}\r\n\r\n{body}",
+                body.len()
+            )
+            .as_bytes(),
+        )
+        .await
+        .unwrap();
+    let held = || async {
+        let metrics = s.get("/metrics").await.text().await.unwrap();
+        metrics
+            .lines()
+            .find_map(|l| l.strip_prefix("answer_bytes_held "))
+            .map(|v| v.parse::<f64>().unwrap())
+    };
+    let t = Instant::now();
+    while !held().await.is_some_and(|bytes| bytes > 4e6) {
+        assert!(t.elapsed() < Duration::from_secs(10), "{:?}", held().await);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    let p = problem_of(s.post(&large).await, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:overloaded", "{p}");
+    assert!(
+        p["detail"]
+            .as_str()
+            .unwrap()
+            .starts_with("the answers still being sent to other clients hold"),
+        "{p}"
+    );
+    assert_eq!(s.post(&json!({})).await.status(), StatusCode::OK);
+    drop(stalled);
+    let t = Instant::now();
+    while held().await != Some(0.0) {
+        assert!(t.elapsed() < Duration::from_secs(10), "{:?}", held().await);
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    }
+    assert_eq!(s.post(&large).await.status(), StatusCode::OK);
+    let metrics = s.get("/metrics").await.text().await.unwrap();
+    assert!(
+        metrics.contains("solve_rejections_total{reason=\"answer_budget\"} 1"),
+        "{metrics}"
+    );
+}
+
 /// A client that stalls mid-body gets a 408 problem after the read timeout.
 #[tokio::test]
 async fn a_client_stalled_in_its_body_gets_408() {

@@ -57,6 +57,9 @@ pub enum Overload {
     Queue,
     /// The bodies being read hold `--max-inflight-body-bytes`.
     Bodies,
+    /// The answers being sent hold as many bytes (clients reading slowly
+    /// or not at all); the solve ran, its answer is dropped.
+    Answers,
 }
 
 /// Every way a request can fail.
@@ -170,6 +173,10 @@ impl ApiError {
                 cause: Overload::Bodies,
                 ..
             } => "body_budget",
+            Self::Overloaded {
+                cause: Overload::Answers,
+                ..
+            } => "answer_budget",
             Self::ClientLeft => "client_left",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
@@ -235,6 +242,11 @@ impl ApiError {
                     Overload::Bodies => format!(
                         "too many request bodies are being received at once; \
                          retry in {retry_after} s"
+                    ),
+                    Overload::Answers => format!(
+                        "the answers still being sent to other clients hold the memory \
+                         budget for answers (clients reading slowly); the solve ran but \
+                         its answer was dropped; retry in {retry_after} s"
                     ),
                 },
                 vec![],

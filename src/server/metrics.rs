@@ -15,11 +15,14 @@
 //!   got an error: `malformed_json`, `unsupported_media_type`, `too_large`,
 //!   `body_timeout`, `unreadable_body`, `invalid`, `queue_full`,
 //!   `body_budget` (the bodies being read hold
-//!   `--max-inflight-body-bytes`), `shutting_down`, `internal` (a solver
+//!   `--max-inflight-body-bytes`), `answer_budget` (the answers being sent
+//!   hold as many bytes; the solve ran), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `request_body_bytes_held`, gauge: bytes the bodies being read hold,
 //!   against `--max-inflight-body-bytes`;
+//! * `answer_bytes_held`, gauge: bytes the answers being sent hold, against
+//!   a budget of the same size;
 //! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
 //! * `solve_iterations`, histogram;
 //! * `http_request_duration_seconds{route}`, histogram: from routing to
@@ -117,6 +120,11 @@ fn describe() {
         "POST /solve requests answered with an error, by reason"
     );
     describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
+    describe_gauge!(
+        "answer_bytes_held",
+        Unit::Bytes,
+        "Bytes held by the answers being sent, against --max-inflight-body-bytes"
+    );
     describe_gauge!(
         "request_body_bytes_held",
         Unit::Bytes,

@@ -269,8 +269,9 @@ pub struct Config {
     /// connections are not limited (100 clients each sending a 4 MB body
     /// held 395 MiB). A body that would take the total past this waits for
     /// nothing: it gets 503 `overloaded` with `Retry-After`, as a full queue
-    /// does. At least `--max-body-bytes` (default: 16 times it, 64 MiB at
-    /// its default).
+    /// does. The answers being sent have a budget of this size too (an
+    /// answer over it while others hold it is a 503). At least
+    /// `--max-body-bytes` (default: 16 times it, 64 MiB at its default).
     #[arg(long, env = "ILQR_MAX_INFLIGHT_BODY_BYTES",
           value_parser = parse_max_body_bytes, allow_negative_numbers = true)]
     pub max_inflight_body_bytes: Option<usize>,
@@ -455,6 +456,9 @@ pub struct AppState {
     /// Bytes of the request bodies being read, against
     /// `--max-inflight-body-bytes`.
     bodies: body::BodyBudget,
+    /// Bytes of the answers being sent, against the same limit as the
+    /// bodies (a budget of its own: see `stall`).
+    answers: Arc<stall::AnswerBudget>,
     /// Permits, one per worker, for running solves whose budget ran out
     /// while queued (see `routes::solve`).
     expired_lane: Arc<tokio::sync::Semaphore>,
@@ -476,6 +480,7 @@ impl AppState {
         let pool = Pool::new(config.workers(), config.queue_capacity)?;
         Ok(Arc::new(Self {
             bodies: body::BodyBudget::new(config.inflight_body_bytes()),
+            answers: stall::AnswerBudget::new(config.inflight_body_bytes()),
             expired_lane: Arc::new(tokio::sync::Semaphore::new(config.workers())),
             config,
             pool,

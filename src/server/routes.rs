@@ -335,7 +335,8 @@ impl<B> OnResponse<B> for AccessLog {
         let (problem_type, title, detail) = (p.kind.as_str(), p.title, p.detail.as_str());
         if p.overloaded {
             // Back-pressure working, counted in
-            // solve_rejections_total{reason="queue_full" or "body_budget"}; a line each
+            // solve_rejections_total{reason="queue_full", "body_budget" or
+            // "answer_budget"}; a line each
             // would flood the log exactly when the service is busiest.
             tracing::debug!(status, latency_ms, problem_type, title, detail, "response");
         } else if res.status().is_server_error() {
@@ -543,7 +544,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
-        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, or the request bodies being received hold the server's memory budget for bodies) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
+        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, the request bodies being received hold the server's memory budget for bodies, or the answers still being sent to slow readers hold the budget for answers: the solve ran, its answer was dropped) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1)"))),
     )
 )]
@@ -672,6 +673,13 @@ async fn solve(
     match done.outcome {
         Ok(None) => Err(reject(ApiError::ShuttingDown)),
         Ok(Some(Ok(Ok((body, timing))))) => {
+            let gzip = body.gzip;
+            let Ok(bytes) = st.answers.hold(body.bytes) else {
+                return Err(reject(ApiError::Overloaded {
+                    retry_after: st.config.retry_after_secs,
+                    cause: Overload::Answers,
+                }));
+            };
             let mut res = (
                 [
                     (
@@ -680,10 +688,10 @@ async fn solve(
                     ),
                     (header::VARY, HeaderValue::from_static("accept-encoding")),
                 ],
-                body.bytes,
+                axum::body::Body::from(bytes),
             )
                 .into_response();
-            if body.gzip {
+            if gzip {
                 res.headers_mut()
                     .insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
             }
@@ -929,6 +937,7 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
     ::metrics::gauge!("request_body_bytes_held").set(st.bodies.used() as f64);
+    ::metrics::gauge!("answer_bytes_held").set(st.answers.used() as f64);
     let mut body = metrics::handle().render();
     body.push_str(&metrics::process_text());
     (

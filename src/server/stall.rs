@@ -118,3 +118,102 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteStall<T> {
         self.guard(cx, |inner, cx| inner.poll_shutdown(cx))
     }
 }
+
+/// Bytes that the answers being sent may hold together: the other half of
+/// bounding what slow readers cost. [`WriteStall`] frees a stalled answer
+/// after the read timeout; this bounds how many bytes of answers wait
+/// meanwhile. An answer is held from when it is encoded until hyper has
+/// written its last byte or dropped its connection ([`AnswerBudget::hold`]
+/// ties the count to the bytes themselves).
+#[derive(Debug)]
+pub(crate) struct AnswerBudget {
+    limit: usize,
+    used: std::sync::atomic::AtomicUsize,
+}
+
+impl AnswerBudget {
+    pub(crate) fn new(limit: usize) -> std::sync::Arc<Self> {
+        std::sync::Arc::new(Self {
+            limit,
+            used: std::sync::atomic::AtomicUsize::new(0),
+        })
+    }
+
+    /// Bytes held now, over all answers being sent.
+    pub(crate) fn used(&self) -> usize {
+        self.used.load(std::sync::atomic::Ordering::Relaxed)
+    }
+
+    /// `answer` as a body that holds its length in the budget until its
+    /// last reference is dropped, or `answer` back if it does not fit. One
+    /// answer always fits into an empty budget, whatever its size, so an
+    /// answer larger than the limit is sent when it is the only one.
+    pub(crate) fn hold(
+        self: &std::sync::Arc<Self>,
+        answer: Vec<u8>,
+    ) -> Result<axum::body::Bytes, Vec<u8>> {
+        use std::sync::atomic::Ordering;
+        let len = answer.len();
+        let taken = self
+            .used
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
+                used.checked_add(len)
+                    .filter(|&total| total <= self.limit || used == 0)
+            })
+            .is_ok();
+        if !taken {
+            return Err(answer);
+        }
+        Ok(axum::body::Bytes::from_owner(HeldAnswer {
+            answer,
+            budget: std::sync::Arc::clone(self),
+        }))
+    }
+}
+
+/// An answer's bytes and its share of the [`AnswerBudget`], given back
+/// when hyper drops the last reference (written out, or the connection
+/// gone).
+struct HeldAnswer {
+    answer: Vec<u8>,
+    budget: std::sync::Arc<AnswerBudget>,
+}
+
+impl AsRef<[u8]> for HeldAnswer {
+    fn as_ref(&self) -> &[u8] {
+        &self.answer
+    }
+}
+
+impl Drop for HeldAnswer {
+    fn drop(&mut self) {
+        self.budget
+            .used
+            .fetch_sub(self.answer.len(), std::sync::atomic::Ordering::AcqRel);
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Held while any reference lives, given back after the last; one
+    /// answer larger than the limit passes an empty budget only.
+    #[test]
+    fn answers_hold_their_bytes_until_dropped() {
+        let budget = AnswerBudget::new(10);
+        let a = budget.hold(vec![1; 6]).unwrap();
+        let a2 = a.clone();
+        assert_eq!(budget.used(), 6);
+        assert_eq!(budget.hold(vec![2; 5]).unwrap_err().len(), 5);
+        drop(a);
+        assert_eq!(budget.used(), 6, "a clone still holds the bytes");
+        drop(a2);
+        assert_eq!(budget.used(), 0);
+        let big = budget.hold(vec![3; 50]).unwrap();
+        assert_eq!(&big[..2], &[3, 3]);
+        assert!(budget.hold(vec![4; 1]).is_err());
+        drop(big);
+        assert_eq!(budget.used(), 0);
+    }
+}
