@@ -971,6 +971,8 @@ fn json_logs_keep_one_type_per_field_and_overload_does_not_flood_them() {
     assert!(finished["solve_status"].is_string(), "{finished}");
     assert!(finished.get("status").is_none(), "{finished}");
     assert_eq!(finished["span"]["request_id"], "req-slow");
+    // Its own target, so that RUST_LOG can drop it alone.
+    assert_eq!(finished["target"], "ilqr_service::solves", "{finished}");
     let warned = lines
         .iter()
         .find(|l| l["level"] == "WARN")
