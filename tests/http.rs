@@ -1465,9 +1465,10 @@ async fn a_silent_or_http2_connection_is_not_kept_open() {
 /// A client that stops reading its answer loses the connection once the
 /// answer has made no progress for the read timeout, and the answer is
 /// freed: it used to be held for as long as the client kept the socket (a
-/// review's 100 such clients held 433 MB). The answer (about 7 MB: N =
-/// 10000 with gains) is larger than what the two socket buffers take, so
-/// the client that finally reads gets less than the Content-Length.
+/// review's 100 such clients held 433 MB). The answer (about 4.6 MB: N =
+/// 10000 with gains) is larger than what the two socket buffers take here
+/// (`tcp_wmem` at most 4 MiB, and 4 KiB to receive), so the client that
+/// finally reads gets less than the Content-Length.
 #[tokio::test]
 async fn a_client_that_stops_reading_its_answer_is_disconnected() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -1563,28 +1564,84 @@ async fn answers_waiting_for_slow_readers_are_bounded() {
         assert!(t.elapsed() < Duration::from_secs(10), "{:?}", held().await);
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
+    // Counters are process-wide (tests run in parallel): compared, not
+    // matched.
+    let rejected = || async {
+        let metrics = s.get("/metrics").await.text().await.unwrap();
+        metrics
+            .lines()
+            .find_map(|l| l.strip_prefix("solve_rejections_total{reason=\"answer_budget\"} "))
+            .map_or(0.0, |v| v.parse::<f64>().unwrap())
+    };
+    let before = rejected().await;
     let p = problem_of(s.post(&large).await, StatusCode::SERVICE_UNAVAILABLE).await;
     assert_eq!(p["type"], "urn:ilqr-service:overloaded", "{p}");
     assert!(
         p["detail"]
             .as_str()
             .unwrap()
-            .starts_with("the answers still being sent to other clients hold"),
+            .contains("hold the memory budget for answers (clients reading slowly); the solve ran"),
         "{p}"
     );
+    assert_eq!(rejected().await, before + 1.0);
     assert_eq!(s.post(&json!({})).await.status(), StatusCode::OK);
     drop(stalled);
+    // Freed with the connection: the large answer is sent again.
     let t = Instant::now();
-    while held().await != Some(0.0) {
+    while s.post(&large).await.status() != StatusCode::OK {
         assert!(t.elapsed() < Duration::from_secs(10), "{:?}", held().await);
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
-    assert_eq!(s.post(&large).await.status(), StatusCode::OK);
-    let metrics = s.get("/metrics").await.text().await.unwrap();
+}
+
+/// With the answer budget (1 MiB here) used up by one larger answer that a
+/// client does not read, a request is refused before its solve: nothing it
+/// could solve would be sent.
+#[tokio::test]
+async fn a_full_answer_budget_refuses_before_solving() {
+    use tokio::io::AsyncWriteExt;
+    let s = Server::start(Config {
+        max_body_bytes: 1 << 20,
+        max_inflight_body_bytes: Some(1 << 20),
+        ..read_timeout(60)
+    })
+    .await;
+    let body = json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
+                      "output": {"trace": false}})
+    .to_string();
+    let socket = tokio::net::TcpSocket::new_v4().unwrap();
+    socket.set_recv_buffer_size(4096).unwrap();
+    let mut stalled = socket.connect(s.addr).await.unwrap();
+    stalled
+        .write_all(
+            format!(
+                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+                 Content-Length: {}\r\n\r\n{body}",
+                body.len()
+            )
+            .as_bytes(),
+        )
+        .await
+        .unwrap();
+    let t = Instant::now();
+    let p = loop {
+        let res = s.post(&json!({})).await;
+        if res.status() == StatusCode::SERVICE_UNAVAILABLE {
+            break problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+        }
+        assert!(
+            t.elapsed() < Duration::from_secs(10),
+            "the large answer was never held"
+        );
+        tokio::time::sleep(Duration::from_millis(20)).await;
+    };
     assert!(
-        metrics.contains("solve_rejections_total{reason=\"answer_budget\"} 1"),
-        "{metrics}"
+        p["detail"].as_str().unwrap().contains(
+            "hold the whole memory budget for answers (clients reading slowly); nothing was solved"
+        ),
+        "{p}"
     );
+    drop(stalled);
 }
 
 /// A client that stalls mid-body gets a 408 problem after the read timeout.

@@ -60,6 +60,9 @@ pub enum Overload {
     /// The answers being sent hold as many bytes (clients reading slowly
     /// or not at all); the solve ran, its answer is dropped.
     Answers,
+    /// The answers being sent hold the whole budget already: refused
+    /// before solving.
+    AnswersFull,
 }
 
 /// Every way a request can fail.
@@ -174,7 +177,7 @@ impl ApiError {
                 ..
             } => "body_budget",
             Self::Overloaded {
-                cause: Overload::Answers,
+                cause: Overload::Answers | Overload::AnswersFull,
                 ..
             } => "answer_budget",
             Self::ClientLeft => "client_left",
@@ -247,6 +250,11 @@ impl ApiError {
                         "the answers still being sent to other clients hold the memory \
                          budget for answers (clients reading slowly); the solve ran but \
                          its answer was dropped; retry in {retry_after} s"
+                    ),
+                    Overload::AnswersFull => format!(
+                        "the answers still being sent to other clients hold the whole \
+                         memory budget for answers (clients reading slowly); nothing was \
+                         solved; retry in {retry_after} s"
                     ),
                 },
                 vec![],

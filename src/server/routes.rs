@@ -547,7 +547,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
-        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, the request bodies being received hold the server's memory budget for bodies, or the answers still being sent to slow readers hold the budget for answers: the solve ran, its answer was dropped) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
+        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, the request bodies being received hold the server's memory budget for bodies, or the answers still being sent to slow readers hold the budget for answers: refused before solving when they hold all of it, otherwise the solve ran and its answer was dropped) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
             headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1)"))),
     )
 )]
@@ -567,6 +567,14 @@ async fn solve(
     spec.validate(&st.config.limits())
         .map_err(|e| reject(ApiError::Validation(e)))?;
 
+    // Answers to slow readers fill the budget for answers: nothing solved
+    // now could be sent, so say so before spending a solve on it.
+    if st.answers.is_full() {
+        return Err(reject(ApiError::Overloaded {
+            retry_after: st.config.retry_after_secs,
+            cause: Overload::AnswersFull,
+        }));
+    }
     let guard = st.admit();
     let cancel = Arc::clone(&guard.flag);
     // The request span (and its request_id) follows the solve to the worker.

@@ -144,6 +144,12 @@ impl AnswerBudget {
         self.used.load(std::sync::atomic::Ordering::Relaxed)
     }
 
+    /// Whether no answer could be held now: the budget is used up (or
+    /// past it, by one answer larger than the limit).
+    pub(crate) fn is_full(&self) -> bool {
+        self.used() >= self.limit
+    }
+
     /// `answer` as a body that holds its length in the budget until its
     /// last reference is dropped, or `answer` back if it does not fit. One
     /// answer always fits into an empty budget, whatever its size, so an
@@ -153,7 +159,9 @@ impl AnswerBudget {
         answer: Vec<u8>,
     ) -> Result<axum::body::Bytes, Vec<u8>> {
         use std::sync::atomic::Ordering;
-        let len = answer.len();
+        // The allocation, not the text: the encoder reserves ahead, about
+        // a fifth more than it writes.
+        let len = answer.capacity();
         let taken = self
             .used
             .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
@@ -166,6 +174,7 @@ impl AnswerBudget {
         }
         Ok(axum::body::Bytes::from_owner(HeldAnswer {
             answer,
+            held: len,
             budget: std::sync::Arc::clone(self),
         }))
     }
@@ -176,6 +185,8 @@ impl AnswerBudget {
 /// gone).
 struct HeldAnswer {
     answer: Vec<u8>,
+    /// What was taken from the budget: the allocation's size.
+    held: usize,
     budget: std::sync::Arc<AnswerBudget>,
 }
 
@@ -189,13 +200,71 @@ impl Drop for HeldAnswer {
     fn drop(&mut self) {
         self.budget
             .used
-            .fetch_sub(self.answer.len(), std::sync::atomic::Ordering::AcqRel);
+            .fetch_sub(self.held, std::sync::atomic::Ordering::AcqRel);
     }
 }
 
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    use tokio::io::{AsyncReadExt, AsyncWriteExt};
+
+    /// A connected pair over loopback with small buffers (a few KiB in
+    /// flight instead of megabytes), the writer wrapped with `limit`.
+    async fn pair(limit: Duration) -> (WriteStall<tokio::net::TcpStream>, tokio::net::TcpStream) {
+        let listener = tokio::net::TcpSocket::new_v4().unwrap();
+        listener.set_recv_buffer_size(4096).unwrap();
+        listener.bind("127.0.0.1:0".parse().unwrap()).unwrap();
+        let listener = listener.listen(1).unwrap();
+        let writer = tokio::net::TcpSocket::new_v4().unwrap();
+        writer.set_send_buffer_size(4096).unwrap();
+        let (writer, reader) = tokio::join!(
+            writer.connect(listener.local_addr().unwrap()),
+            listener.accept()
+        );
+        (WriteStall::new(writer.unwrap(), limit), reader.unwrap().0)
+    }
+
+    /// A peer that reads nothing: the write fails with `TimedOut` once the
+    /// buffers are full and the limit has passed.
+    #[tokio::test]
+    async fn a_write_nobody_reads_times_out() {
+        let (mut writer, _reader) = pair(Duration::from_millis(200)).await;
+        let started = std::time::Instant::now();
+        let err = writer.write_all(&vec![7; 4 << 20]).await.unwrap_err();
+        assert_eq!(err.kind(), io::ErrorKind::TimedOut);
+        let took = started.elapsed();
+        assert!(took >= Duration::from_millis(200), "{took:?}");
+        assert!(took < Duration::from_secs(5), "{took:?}");
+    }
+
+    /// A peer that reads slowly but steadily (4 KiB every 50 ms, for well
+    /// over the 200 ms limit in all) is not cut off: progress restarts the
+    /// clock. The wrapper stays vectored, so hyper queues answers without
+    /// copying them and the budget follows their bytes.
+    #[tokio::test]
+    async fn a_slow_steady_reader_is_not_cut_off() {
+        let (mut writer, mut reader) = pair(Duration::from_millis(200)).await;
+        assert!(writer.is_write_vectored());
+        let total = 96 * 1024;
+        let read = tokio::spawn(async move {
+            let (mut got, mut buf) = (0, vec![0; 4096]);
+            while got < total {
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                got += reader.read(&mut buf).await.unwrap();
+            }
+            got
+        });
+        let started = std::time::Instant::now();
+        writer.write_all(&vec![7; total]).await.unwrap();
+        writer.flush().await.unwrap();
+        assert_eq!(read.await.unwrap(), total);
+        assert!(
+            started.elapsed() > Duration::from_millis(400),
+            "the buffers took it all"
+        );
+    }
 
     /// Held while any reference lives, given back after the last; one
     /// answer larger than the limit passes an empty budget only.
@@ -205,6 +274,7 @@ mod tests {
         let a = budget.hold(vec![1; 6]).unwrap();
         let a2 = a.clone();
         assert_eq!(budget.used(), 6);
+        assert!(!budget.is_full());
         assert_eq!(budget.hold(vec![2; 5]).unwrap_err().len(), 5);
         drop(a);
         assert_eq!(budget.used(), 6, "a clone still holds the bytes");
@@ -212,8 +282,16 @@ mod tests {
         assert_eq!(budget.used(), 0);
         let big = budget.hold(vec![3; 50]).unwrap();
         assert_eq!(&big[..2], &[3, 3]);
+        assert!(budget.is_full());
         assert!(budget.hold(vec![4; 1]).is_err());
         drop(big);
+        assert_eq!(budget.used(), 0);
+        // The allocation is what counts, not the text in it.
+        let mut reserved = Vec::with_capacity(8);
+        reserved.push(1u8);
+        let r = budget.hold(reserved).unwrap();
+        assert_eq!(budget.used(), 8);
+        drop(r);
         assert_eq!(budget.used(), 0);
     }
 }
