@@ -514,6 +514,9 @@ async fn a_415_says_what_was_received() {
         req.send()
     };
     let long = format!("text/{}", "a".repeat(5000));
+    let compressed = "the body is compressed (Content-Encoding: `gzip`); send it uncompressed, \
+                      as this service reads no compressed requests"
+        .to_owned();
     for (headers, detail) in [
         (
             vec![],
@@ -548,9 +551,7 @@ async fn a_415_says_what_was_received() {
                 ("content-type", "application/json".into()),
                 ("content-encoding", "gzip".into()),
             ],
-            "the body is compressed (Content-Encoding: `gzip`); send it uncompressed, as this \
-             service reads no compressed requests"
-                .to_owned(),
+            compressed.clone(),
         ),
         (
             // Every field line counts, not only the first.
@@ -559,9 +560,7 @@ async fn a_415_says_what_was_received() {
                 ("content-encoding", "identity".into()),
                 ("content-encoding", "gzip".into()),
             ],
-            "the body is compressed (Content-Encoding: `gzip`); send it uncompressed, as this \
-             service reads no compressed requests"
-                .to_owned(),
+            compressed.clone(),
         ),
         (
             vec![
@@ -1462,23 +1461,21 @@ async fn a_silent_or_http2_connection_is_not_kept_open() {
     }
 }
 
-/// A client that stops reading its answer loses the connection once the
-/// answer has made no progress for the read timeout, and the answer is
-/// freed: it used to be held for as long as the client kept the socket (a
-/// review's 100 such clients held 433 MB). The answer (about 4.6 MB: N =
-/// 10000 with gains) is larger than what the two socket buffers take here
-/// (`tcp_wmem` at most 4 MiB, and 4 KiB to receive), so the client that
-/// finally reads gets less than the Content-Length.
-#[tokio::test]
-async fn a_client_that_stops_reading_its_answer_is_disconnected() {
-    use tokio::io::{AsyncReadExt, AsyncWriteExt};
-    let s = Server::start(read_timeout(1)).await;
-    let body = json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
-                      "output": {"trace": false}})
-    .to_string();
+/// A problem whose answer (about 4.6 MB: N = 10000 with gains) is larger
+/// than what the socket buffers take.
+fn large_answer_problem() -> Value {
+    json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
+           "output": {"trace": false}})
+}
+
+/// POSTs `problem` to /solve from a socket that takes 4 KiB and will not
+/// read until the caller does: a client that stops reading its answer.
+async fn post_without_reading(addr: SocketAddr, problem: &Value) -> tokio::net::TcpStream {
+    use tokio::io::AsyncWriteExt;
+    let body = problem.to_string();
     let socket = tokio::net::TcpSocket::new_v4().unwrap();
     socket.set_recv_buffer_size(4096).unwrap();
-    let mut conn = socket.connect(s.addr).await.unwrap();
+    let mut conn = socket.connect(addr).await.unwrap();
     conn.write_all(
         format!(
             "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
@@ -1489,6 +1486,21 @@ async fn a_client_that_stops_reading_its_answer_is_disconnected() {
     )
     .await
     .unwrap();
+    conn
+}
+
+/// A client that stops reading its answer loses the connection once the
+/// answer has made no progress for the read timeout, and the answer is
+/// freed: it used to be held for as long as the client kept the socket (a
+/// review's 100 such clients held 433 MB). The answer (about 4.6 MB: N =
+/// 10000 with gains) is larger than what the two socket buffers take here
+/// (`tcp_wmem` at most 4 MiB, and 4 KiB to receive), so the client that
+/// finally reads gets less than the Content-Length.
+#[tokio::test]
+async fn a_client_that_stops_reading_its_answer_is_disconnected() {
+    use tokio::io::AsyncReadExt;
+    let s = Server::start(read_timeout(1)).await;
+    let mut conn = post_without_reading(s.addr, &large_answer_problem()).await;
     // Not reading: the solve runs, its answer fills the buffers, and the
     // server's write stalls.
     tokio::time::sleep(Duration::from_secs(4)).await;
@@ -1528,30 +1540,14 @@ async fn a_client_that_stops_reading_its_answer_is_disconnected() {
 /// one is answered again.
 #[tokio::test]
 async fn answers_waiting_for_slow_readers_are_bounded() {
-    use tokio::io::AsyncWriteExt;
     let s = Server::start(Config {
         max_body_bytes: 1 << 20,
         max_inflight_body_bytes: Some(8 << 20),
         ..read_timeout(60)
     })
     .await;
-    let large = json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
-                       "output": {"trace": false}});
-    let body = large.to_string();
-    let socket = tokio::net::TcpSocket::new_v4().unwrap();
-    socket.set_recv_buffer_size(4096).unwrap();
-    let mut stalled = socket.connect(s.addr).await.unwrap();
-    stalled
-        .write_all(
-            format!(
-                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
-                 Content-Length: {}\r\n\r\n{body}",
-                body.len()
-            )
-            .as_bytes(),
-        )
-        .await
-        .unwrap();
+    let large = large_answer_problem();
+    let stalled = post_without_reading(s.addr, &large).await;
     let held = || async {
         let metrics = s.get("/metrics").await.text().await.unwrap();
         metrics
@@ -1599,30 +1595,13 @@ async fn answers_waiting_for_slow_readers_are_bounded() {
 /// could solve would be sent.
 #[tokio::test]
 async fn a_full_answer_budget_refuses_before_solving() {
-    use tokio::io::AsyncWriteExt;
     let s = Server::start(Config {
         max_body_bytes: 1 << 20,
         max_inflight_body_bytes: Some(1 << 20),
         ..read_timeout(60)
     })
     .await;
-    let body = json!({"horizon": 10000, "dt": 0.001, "solver": {"max_iterations": 2},
-                      "output": {"trace": false}})
-    .to_string();
-    let socket = tokio::net::TcpSocket::new_v4().unwrap();
-    socket.set_recv_buffer_size(4096).unwrap();
-    let mut stalled = socket.connect(s.addr).await.unwrap();
-    stalled
-        .write_all(
-            format!(
-                "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
-                 Content-Length: {}\r\n\r\n{body}",
-                body.len()
-            )
-            .as_bytes(),
-        )
-        .await
-        .unwrap();
+    let stalled = post_without_reading(s.addr, &large_answer_problem()).await;
     let t = Instant::now();
     let p = loop {
         let res = s.post(&json!({})).await;
@@ -1779,25 +1758,22 @@ async fn a_flood_of_invalid_values_gives_a_bounded_answer() {
 #[tokio::test]
 async fn body_framing_and_coding_edge_cases() {
     let s = Server::default().await;
-    let res = reqwest::Client::new()
-        .post(s.url("/solve"))
-        .header("content-type", "application/json")
-        .header("content-encoding", "IDENTITY")
-        .body(r#"{"solver": {"max_iterations": 1}}"#)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 200);
-    // Content-Type twice, the same: one media type, read.
-    let res = reqwest::Client::new()
-        .post(s.url("/solve"))
-        .header("content-type", "application/json")
-        .header("content-type", "application/json")
-        .body(r#"{"solver": {"max_iterations": 1}}"#)
-        .send()
-        .await
-        .unwrap();
-    assert_eq!(res.status(), 200);
+    // `Content-Encoding: IDENTITY` is identity, and the same Content-Type
+    // twice is one media type: both are read.
+    for second in [
+        ("content-encoding", "IDENTITY"),
+        ("content-type", "application/json"),
+    ] {
+        let res = reqwest::Client::new()
+            .post(s.url("/solve"))
+            .header("content-type", "application/json")
+            .header(second.0, second.1)
+            .body(r#"{"solver": {"max_iterations": 1}}"#)
+            .send()
+            .await
+            .unwrap();
+        assert_eq!(res.status(), 200, "{second:?}");
+    }
 
     // hyper answers a coding that does not end in `chunked` itself (an
     // empty 400), so only one before it reaches the service.

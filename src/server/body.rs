@@ -44,11 +44,55 @@ use http_body_util::BodyExt;
 
 use super::error::{ApiError, Overload};
 
+/// A count of bytes held against a limit, shared by threads: the bodies
+/// being read ([`BodyBudget`]) and the answers being sent
+/// ([`super::stall::AnswerBudget`]) each have one.
+#[derive(Debug)]
+pub(crate) struct ByteBudget {
+    limit: usize,
+    used: AtomicUsize,
+}
+
+impl ByteBudget {
+    pub(crate) fn new(limit: usize) -> Self {
+        Self {
+            limit,
+            used: AtomicUsize::new(0),
+        }
+    }
+
+    /// Bytes held now.
+    pub(crate) fn used(&self) -> usize {
+        self.used.load(Ordering::Relaxed)
+    }
+
+    /// Bytes not held.
+    pub(crate) fn free(&self) -> usize {
+        self.limit.saturating_sub(self.used.load(Ordering::Acquire))
+    }
+
+    /// Take `bytes` more, or nothing if they do not fit. With
+    /// `past_limit_when_empty`, an empty budget takes any amount (one
+    /// holder larger than the limit may go ahead alone).
+    pub(crate) fn take(&self, bytes: usize, past_limit_when_empty: bool) -> bool {
+        self.used
+            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
+                used.checked_add(bytes)
+                    .filter(|&total| total <= self.limit || (past_limit_when_empty && used == 0))
+            })
+            .is_ok()
+    }
+
+    /// Return `bytes` taken before.
+    pub(crate) fn give_back(&self, bytes: usize) {
+        self.used.fetch_sub(bytes, Ordering::AcqRel);
+    }
+}
+
 /// Bytes that all bodies being read may hold together.
 #[derive(Debug)]
 pub(crate) struct BodyBudget {
-    limit: usize,
-    used: AtomicUsize,
+    bytes: ByteBudget,
     /// One permit: the parse of a body over [`INLINE_PARSE_BYTES`].
     parse_lane: Semaphore,
 }
@@ -62,29 +106,24 @@ pub(crate) const INLINE_PARSE_BYTES: usize = 64 * 1024;
 impl BodyBudget {
     pub(crate) fn new(limit: usize) -> Self {
         Self {
-            limit,
-            used: AtomicUsize::new(0),
+            bytes: ByteBudget::new(limit),
             parse_lane: Semaphore::new(1),
         }
     }
 
     /// Bytes held now, over all bodies.
     pub(crate) fn used(&self) -> usize {
-        self.used.load(Ordering::Relaxed)
+        self.bytes.used()
     }
 
     /// Bytes not held by any body.
     fn free(&self) -> usize {
-        self.limit.saturating_sub(self.used.load(Ordering::Acquire))
+        self.bytes.free()
     }
 
     /// Take `bytes` more from the budget, or nothing if they do not fit.
     fn take(&self, bytes: usize) -> bool {
-        self.used
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
-                used.checked_add(bytes).filter(|&total| total <= self.limit)
-            })
-            .is_ok()
+        self.bytes.take(bytes, false)
     }
 }
 
@@ -110,7 +149,7 @@ impl Held<'_> {
 
 impl Drop for Held<'_> {
     fn drop(&mut self) {
-        self.budget.used.fetch_sub(self.bytes, Ordering::AcqRel);
+        self.budget.bytes.give_back(self.bytes);
     }
 }
 

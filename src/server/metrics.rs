@@ -16,7 +16,8 @@
 //!   `body_timeout`, `unreadable_body`, `invalid`, `queue_full`,
 //!   `body_budget` (the bodies being read hold
 //!   `--max-inflight-body-bytes`), `answer_budget` (the answers being sent
-//!   hold as many bytes; the solve ran), `shutting_down`, `internal` (a solver
+//!   hold as many bytes: refused before solving when they hold all of it,
+//!   otherwise after), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
 //! * `request_body_bytes_held`, gauge: bytes the bodies being read hold,

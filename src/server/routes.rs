@@ -1009,7 +1009,7 @@ async fn not_found(method: axum::http::Method, uri: axum::http::Uri) -> ApiError
 /// `/docs/`, but its `/docs/{*rest}` route serves the page for `/docs//`
 /// too, where the page's relative link to the spec (`../openapi.json`)
 /// resolves to `/docs/openapi.json`, a 404: any further `/` is a 404 here
-/// (for `/docs//`, "did you mean /docs/"). Its `/docs/{*rest}` route answers an
+/// (for `/docs//`, "did you mean /docs/"). The same route answers an
 /// unknown file with an empty 404 of its own, before the router's fallback
 /// can; make it ours (with the request's method and path, as the
 /// fallback's). Its `/docs` redirect says `Location: /docs/`,

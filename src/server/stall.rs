@@ -17,11 +17,15 @@
 
 use std::io;
 use std::pin::Pin;
+use std::sync::Arc;
 use std::task::{Context, Poll};
 use std::time::Duration;
 
+use axum::body::Bytes;
 use tokio::io::{AsyncRead, AsyncWrite, ReadBuf};
 use tokio::time::{Instant, Sleep};
+
+use super::body::ByteBudget;
 
 /// `inner`, whose writes fail once they have been stalled for `limit`.
 pub(crate) struct WriteStall<T> {
@@ -127,55 +131,42 @@ impl<T: AsyncWrite + Unpin> AsyncWrite for WriteStall<T> {
 /// ties the count to the bytes themselves).
 #[derive(Debug)]
 pub(crate) struct AnswerBudget {
-    limit: usize,
-    used: std::sync::atomic::AtomicUsize,
+    bytes: ByteBudget,
 }
 
 impl AnswerBudget {
-    pub(crate) fn new(limit: usize) -> std::sync::Arc<Self> {
-        std::sync::Arc::new(Self {
-            limit,
-            used: std::sync::atomic::AtomicUsize::new(0),
+    pub(crate) fn new(limit: usize) -> Arc<Self> {
+        Arc::new(Self {
+            bytes: ByteBudget::new(limit),
         })
     }
 
     /// Bytes held now, over all answers being sent.
     pub(crate) fn used(&self) -> usize {
-        self.used.load(std::sync::atomic::Ordering::Relaxed)
+        self.bytes.used()
     }
 
     /// Whether no answer could be held now: the budget is used up (or
     /// past it, by one answer larger than the limit).
     pub(crate) fn is_full(&self) -> bool {
-        self.used() >= self.limit
+        self.bytes.free() == 0
     }
 
-    /// `answer` as a body that holds its length in the budget until its
-    /// last reference is dropped, or `answer` back if it does not fit. One
+    /// `answer` as a body that holds its size in the budget until its last
+    /// reference is dropped, or `answer` back if it does not fit. One
     /// answer always fits into an empty budget, whatever its size, so an
     /// answer larger than the limit is sent when it is the only one.
-    pub(crate) fn hold(
-        self: &std::sync::Arc<Self>,
-        answer: Vec<u8>,
-    ) -> Result<axum::body::Bytes, Vec<u8>> {
-        use std::sync::atomic::Ordering;
+    pub(crate) fn hold(self: &Arc<Self>, answer: Vec<u8>) -> Result<Bytes, Vec<u8>> {
         // The allocation, not the text: the encoder reserves ahead, about
         // a fifth more than it writes.
-        let len = answer.capacity();
-        let taken = self
-            .used
-            .fetch_update(Ordering::AcqRel, Ordering::Acquire, |used| {
-                used.checked_add(len)
-                    .filter(|&total| total <= self.limit || used == 0)
-            })
-            .is_ok();
-        if !taken {
+        let held = answer.capacity();
+        if !self.bytes.take(held, true) {
             return Err(answer);
         }
-        Ok(axum::body::Bytes::from_owner(HeldAnswer {
+        Ok(Bytes::from_owner(HeldAnswer {
             answer,
-            held: len,
-            budget: std::sync::Arc::clone(self),
+            held,
+            budget: Arc::clone(self),
         }))
     }
 }
@@ -187,7 +178,7 @@ struct HeldAnswer {
     answer: Vec<u8>,
     /// What was taken from the budget: the allocation's size.
     held: usize,
-    budget: std::sync::Arc<AnswerBudget>,
+    budget: Arc<AnswerBudget>,
 }
 
 impl AsRef<[u8]> for HeldAnswer {
@@ -198,9 +189,7 @@ impl AsRef<[u8]> for HeldAnswer {
 
 impl Drop for HeldAnswer {
     fn drop(&mut self) {
-        self.budget
-            .used
-            .fetch_sub(self.held, std::sync::atomic::Ordering::AcqRel);
+        self.budget.bytes.give_back(self.held);
     }
 }
 
