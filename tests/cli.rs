@@ -1072,3 +1072,86 @@ fn the_dockerfile_labels_the_crate_version() {
         .expect("an `ARG VERSION=` line");
     assert_eq!(version, env!("CARGO_PKG_VERSION"));
 }
+
+/// `GET path` over a fresh connection to the real binary, the body as text.
+fn get_text(bind: &str, path: &str) -> String {
+    use std::io::{Read, Write};
+    let mut conn = std::net::TcpStream::connect(bind).unwrap();
+    write!(
+        conn,
+        "GET {path} HTTP/1.1\r\nHost: {bind}\r\nConnection: close\r\n\r\n"
+    )
+    .unwrap();
+    let mut text = String::new();
+    conn.read_to_string(&mut text).unwrap();
+    text
+}
+
+/// The value of one unlabelled Prometheus sample in `text`.
+fn sample(text: &str, name: &str) -> Option<f64> {
+    text.lines()
+        .find_map(|l| l.strip_prefix(name)?.strip_prefix(' ')?.trim().parse().ok())
+}
+
+/// The pool's gauges say how full it is, from the binary's own flags: an
+/// operator's dashboard needs no copy of `--workers` or `--queue-capacity`.
+/// Run against the real binary (one server per process), since the
+/// in-process servers of tests/http.rs share one recorder.
+#[test]
+fn the_pool_gauges_say_how_full_the_pool_is() {
+    use std::io::Write;
+    use std::time::{Duration, Instant};
+    let (_server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args([
+            "serve",
+            "--bind",
+            bind,
+            "--workers",
+            "1",
+            "--queue-capacity",
+            "3",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    });
+    let idle = get_text(&bind, "/metrics");
+    assert_eq!(sample(&idle, "solve_workers"), Some(1.0), "{idle}");
+    assert_eq!(sample(&idle, "solve_queue_capacity"), Some(3.0), "{idle}");
+    assert_eq!(sample(&idle, "solves_running"), Some(0.0), "{idle}");
+
+    // A solve that runs for seconds (as tests/http.rs's `slow`); leaving
+    // its connection open keeps it running.
+    let obstacles: Vec<String> = (0..100)
+        .map(|j| format!(r#"{{"center":[{},1000],"weight":1}}"#, 1000 + j))
+        .collect();
+    let body = format!(
+        r#"{{"horizon":10000,"dt":0.0005,"obstacles":[{}],"solver":{{"tolerance":0,"max_iterations":10000,"time_limit_ms":20000}},"output":{{"gains":false,"trace":false}}}}"#,
+        obstacles.join(",")
+    );
+    let mut solving = std::net::TcpStream::connect(&bind).unwrap();
+    write!(
+        solving,
+        "POST /solve HTTP/1.1\r\nHost: {bind}\r\nContent-Type: application/json\r\nContent-Length: {}\r\n\r\n{body}",
+        body.len()
+    )
+    .unwrap();
+    let until = |want: f64| {
+        let started = Instant::now();
+        loop {
+            let text = get_text(&bind, "/metrics");
+            if sample(&text, "solves_running") == Some(want) {
+                return text;
+            }
+            assert!(
+                started.elapsed() < Duration::from_secs(10),
+                "solves_running never {want}:\n{text}"
+            );
+            std::thread::sleep(Duration::from_millis(20));
+        }
+    };
+    let busy = until(1.0);
+    assert_eq!(sample(&busy, "solve_queue_depth"), Some(0.0), "{busy}");
+    // The client leaves: its solve is cancelled and the worker is free.
+    drop(solving);
+    until(0.0);
+}

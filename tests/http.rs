@@ -1136,6 +1136,10 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_iterations_bucket",
         concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
         "http_request_duration_seconds_bucket{route=\"/solve\",le=\"0.001\"}",
+        "solve_duration_seconds_bucket{le=\"0.00075\"}",
+        "solves_running",
+        "solve_workers",
+        "solve_queue_capacity",
         "http_request_duration_seconds_count{route=\"/solve\"}",
     ] {
         assert!(text.contains(needle), "missing {needle} in\n{text}");

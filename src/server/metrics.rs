@@ -20,6 +20,12 @@
 //!   otherwise after), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
+//! * `solves_running`, gauge: solves running (on a worker, or on a thread
+//!   of their own when their budget ran out in the queue);
+//! * `solve_workers`, `solve_queue_capacity`, gauges: `--workers` and
+//!   `--queue-capacity`, so that a dashboard can show how full the pool is,
+//!   `(solves_running + solve_queue_depth) / (solve_workers +
+//!   solve_queue_capacity)`, without knowing the flags;
 //! * `request_body_bytes_held`, gauge: bytes the bodies being read hold,
 //!   against `--max-inflight-body-bytes`;
 //! * `answer_bytes_held`, gauge: bytes the answers being sent hold, against
@@ -53,8 +59,10 @@ static HANDLE: OnceLock<PrometheusHandle> = OnceLock::new();
 pub fn handle() -> &'static PrometheusHandle {
     HANDLE.get_or_init(|| {
         let seconds = [
-            0.0001, 0.00025, 0.0005, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0,
-            2.5, 5.0, 10.0, 30.0, 60.0,
+            // 0.75 ms: the seed solve takes 0.4-0.7 ms, and a boundary there
+            // tells a slowdown of the common case from a heavier problem.
+            0.0001, 0.00025, 0.0005, 0.00075, 0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25,
+            0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0,
         ];
         let iterations = [
             1.0, 2.0, 5.0, 10.0, 20.0, 50.0, 100.0, 200.0, 500.0, 1000.0, 10000.0,
@@ -121,6 +129,15 @@ fn describe() {
         "POST /solve requests answered with an error, by reason"
     );
     describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
+    describe_gauge!(
+        "solves_running",
+        "Solves running, on a worker or (budget spent in the queue) on a thread of their own"
+    );
+    describe_gauge!("solve_workers", "Solver worker threads (--workers)");
+    describe_gauge!(
+        "solve_queue_capacity",
+        "Solves that may wait for a worker (--queue-capacity)"
+    );
     describe_gauge!(
         "answer_bytes_held",
         Unit::Bytes,

@@ -161,6 +161,13 @@ impl Pool {
         self.shared.lock().queue.len()
     }
 
+    /// Jobs running: on a worker, or claimed by their caller
+    /// ([`Ticket::claim`]) and run on a thread of its own, so this may
+    /// briefly exceed [`Pool::workers`].
+    pub fn running(&self) -> usize {
+        self.shared.lock().running
+    }
+
     /// Number of worker threads.
     pub fn workers(&self) -> usize {
         self.workers

@@ -951,6 +951,9 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
 )]
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
     ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
+    ::metrics::gauge!("solves_running").set(st.pool.running() as f64);
+    ::metrics::gauge!("solve_workers").set(st.pool.workers() as f64);
+    ::metrics::gauge!("solve_queue_capacity").set(st.pool.capacity() as f64);
     ::metrics::gauge!("request_body_bytes_held").set(st.bodies.used() as f64);
     ::metrics::gauge!("answer_bytes_held").set(st.answers.used() as f64);
     let mut body = metrics::handle().render();
