@@ -69,10 +69,14 @@ def test_retry_honours_retry_after(single_worker: ServiceProcess, caplog: pytest
 
     assert len(result.states) == 21
     assert waited >= 1.0, f"the client should have slept for Retry-After, waited {waited:.2f} s"
+    # The answer says it took more than one attempt (a control loop may not
+    # want to act on it), as many as the log shows.
+    assert result.attempts >= 2
     # The retry got through because the busy solve released the worker.
     assert len(job.result().states) == 10001
     retries = [r for r in caplog.records if "overloaded" in r.getMessage()]
     assert retries and "Retry-After 1" in retries[0].getMessage()
+    assert result.attempts == len(retries) + 1
 
 
 def test_shutting_down_is_retried_with_backoff(

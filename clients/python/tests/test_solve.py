@@ -215,6 +215,9 @@ def test_server_timing_is_read_into_the_result(seed_result: SolveResult) -> None
     assert timing["queue"] == pytest.approx(seed_result.queue_time_ms, abs=1e-3)
     # Not part of equality, as request_id: a timing is no property of the solution.
     assert dataclasses.replace(seed_result, server_timing=None, request_id=None) == seed_result
+    # Nor is how many attempts the answer took: one, here.
+    assert seed_result.attempts == 1
+    assert dataclasses.replace(seed_result, attempts=3) == seed_result
 
 
 def test_server_timing_parsing_skips_what_it_cannot_read() -> None:
@@ -307,6 +310,13 @@ def test_only_a_usable_budget_raises_the_timeout() -> None:
     assert _covering(30.0, budget(1000)) == 30.0
     assert _covering((2.0, 10.0), budget(45000)) == (2.0, 50.0)
     assert _covering((2.0, 60.0), budget(45000)) == (2.0, 60.0)
+    # A read timeout equal to the budget leaves nothing for the answer.
+    assert _covering(10.0, budget(10000)) == (10.0, 15.0)
+    # One longer than the budget is the caller's deadline: a control loop's
+    # 0.1 s with a 20 ms budget stays 0.1 s (it was raised to 5.02 s).
+    assert _covering(0.1, budget(20)) == 0.1
+    assert _covering((0.05, 0.1), budget(20)) == (0.05, 0.1)
+    assert _covering(46.0, budget(45000)) == 46.0
     assert _covering(None, budget(45000)) is None
     # A service may accept budgets of days (--max-time-limit-ms has no cap).
     assert _covering(30.0, budget(86_400_001)) == (30.0, 86_405.001)

@@ -12,13 +12,17 @@ attempts at most, shared by the three kinds of failure):
   not come back in lockstep), then try again. When the retries are used up
   the :class:`~ilqr_client.errors.OverloadedError` is raised.
 * Connection failures (:class:`requests.ConnectionError`: refused, reset,
-  connect timeout) and 503 ``shutting-down``: exponential backoff
+  connect timeout, and a connection closed after the request was sent, as
+  by a server killed mid-solve) and 503 ``shutting-down``: exponential backoff
   ``backoff · 2^attempt`` (capped at ``max_retry_wait``), then try again;
   the last exception or :class:`~ilqr_client.errors.ShuttingDownError` is
   raised. A draining instance closes the connection with its answer, so the
   retry opens a new one, which a load balancer sends to another replica
   (a rolling deploy), or which reaches the instance that replaced this one.
-  Solving has no side effects, so repeating a POST is safe.
+  Solving has no side effects, so repeating a POST is safe, but a retried
+  answer comes later: :attr:`SolveResult.attempts` says how many attempts
+  it took, and a control loop that must act on fresh answers only makes its
+  client with ``retries=0``.
 * Nothing else is retried: not 4xx answers (the same request would fail the
   same way), not 500, and not read timeouts (the service abandons a solve
   whose client has gone, and the same solve would most likely run out of
@@ -54,9 +58,10 @@ TimeoutSpec = Union[float, Tuple[float, float]]
 #: Seconds :meth:`Client.health` and :meth:`Client.ready` wait by default.
 PROBE_TIMEOUT = 5.0
 
-#: Seconds a solve's read timeout allows beyond its ``solver.time_limit_ms``:
-#: the budget covers queueing and solving, not encoding the answer and
-#: moving it (about 0.1 s for the largest answer on a LAN).
+#: Seconds a raised read timeout allows beyond the ``solver.time_limit_ms``
+#: it was raised to cover: the budget covers queueing and solving, not
+#: encoding the answer and moving it (about 0.1 s for the largest answer on
+#: a LAN).
 _BUDGET_MARGIN_S = 5.0
 
 #: Budgets above this (about 31 years, in ms) leave the timeout alone: a
@@ -67,12 +72,16 @@ _MAX_COVERED_BUDGET_MS = 10**12
 
 
 def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Optional[TimeoutSpec]:
-    """``timeout`` with its read part raised to cover the time budget that
-    ``document`` asks for, plus :data:`_BUDGET_MARGIN_S`.
+    """``timeout`` with its read part raised, when it is no longer than the
+    time budget that ``document`` asks for, to that budget plus
+    :data:`_BUDGET_MARGIN_S`.
 
     Without it, a read timeout below the budget gave up on a solve the service
     was still entitled to run, and the service then cancelled it: the caller
-    got ``ReadTimeout`` instead of the trajectory. A budget that is not a
+    got ``ReadTimeout`` instead of the trajectory. A read timeout longer than
+    the budget is the caller's deadline and is kept: raising every read
+    timeout below budget + 5 s turned a control loop's 0.1 s timeout with a
+    20 ms budget into 5 s. A budget that is not a
     number from 0 to 1e12 ms (31 years) is left to the service to refuse (422), and a
     timeout requests accepts in another form (a ``urllib3.Timeout``) is
     used as it is.
@@ -85,10 +94,11 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
         or not 0 <= limit_ms <= _MAX_COVERED_BUDGET_MS
     ):
         return timeout
-    need = limit_ms / 1000.0 + _BUDGET_MARGIN_S
+    budget = limit_ms / 1000.0
+    need = budget + _BUDGET_MARGIN_S
 
     def short(read: object) -> bool:
-        return isinstance(read, (int, float)) and not isinstance(read, bool) and read < need
+        return isinstance(read, (int, float)) and not isinstance(read, bool) and read <= budget
 
     if isinstance(timeout, tuple):
         connect, read = timeout
@@ -115,11 +125,13 @@ class Client:
         timeout: Per-request timeout in seconds, or ``(connect, read)``. A
             solve can legitimately take as long as its time budget (the
             service's default is 10 s, the maximum 60 s). When a problem sets
-            ``solver.time_limit_ms``, :meth:`solve` raises the read timeout
-            to that budget plus 5 s if it is shorter, so the answer is not
-            abandoned (and the solve cancelled) while the service is still
-            within the budget it was given; ``solve(timeout=...)`` overrides
-            it for one call, exactly.
+            ``solver.time_limit_ms`` and the read timeout is no longer than
+            that budget, :meth:`solve` raises it to the budget plus 5 s, so
+            the answer is not abandoned (and the solve cancelled) while the
+            service is still within the budget it was given; a longer read
+            timeout is kept (leave room for encoding and moving the answer,
+            up to about 0.1 s for the largest). ``solve(timeout=...)``
+            overrides it for one call, exactly.
         retries: Extra attempts after an overload (503 with Retry-After), a
             503 ``shutting-down`` or a connection failure; 0 disables
             retrying. See the module docs.
@@ -225,8 +237,8 @@ class Client:
                 the seed scenario. Omitted fields take the service's defaults.
             timeout: Overrides the client's timeout for this call, exactly.
                 Without it the client's timeout is used, its read part raised
-                to the problem's ``solver.time_limit_ms`` plus 5 s when that
-                is longer (the budget includes time spent queued).
+                to the problem's ``solver.time_limit_ms`` plus 5 s when it is
+                no longer than that budget (which includes time spent queued).
             request_id: Sent as ``x-request-id``; the service logs it and
                 echoes it (also on errors), which helps correlate logs. 1 to
                 128 visible ASCII characters (no spaces): the service would
@@ -273,13 +285,16 @@ class Client:
             headers["x-request-id"] = request_id
         if timeout is None:
             timeout = _covering(self.timeout, document)
-        response = self._request("POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout)
+        response, attempts = self._request(
+            "POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout
+        )
         data = self._json(response)
         try:
             return SolveResult.from_dict(
                 data,
                 request_id=response.headers.get("x-request-id"),
                 server_timing=_parse_server_timing(response.headers.get("server-timing")),
+                attempts=attempts,
             )
         except (ValueError, TypeError) as exc:
             raise self._unexpected(response, f"malformed solve result: {exc}") from exc
@@ -294,7 +309,7 @@ class Client:
             ApiError: for an error answer.
             requests.RequestException: transport failures.
         """
-        response = self._request("GET", "/problems/default")
+        response, _ = self._request("GET", "/problems/default")
         data = self._json(response)
         try:
             return Problem.from_dict(data)
@@ -355,11 +370,11 @@ class Client:
         data: Optional[bytes] = None,
         headers: Optional[Dict[str, str]] = None,
         timeout: Optional[TimeoutSpec] = None,
-    ) -> requests.Response:
+    ) -> Tuple[requests.Response, int]:
         """Send a request, retrying overloads and connection failures (see the module docs).
 
         Returns:
-            A response with a status below 400.
+            A response with a status below 400, and how many attempts it took.
 
         Raises:
             ApiError: the error answer, once retrying is over or not allowed.
@@ -389,7 +404,7 @@ class Client:
                 )
             else:
                 if response.status_code < 400:
-                    return response
+                    return response, attempt + 1
                 error = error_from_response(response)
                 response.close()
                 retried = isinstance(error, (OverloadedError, ShuttingDownError))

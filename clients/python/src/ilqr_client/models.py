@@ -692,6 +692,12 @@ class SolveResult:
             ``queue``, ``solve`` and ``encode`` (serialising and compressing
             the answer, which the time budget does not cover); ``None`` for a
             result not read from an answer (not part of equality).
+        attempts: How many times the client sent the request to get this
+            answer: 1, or more after retries (an overload, a draining
+            instance, a connection failure, including one after the request
+            was sent). A control loop that must not act on an answer for an
+            old state checks it, or makes the client with ``retries=0``
+            (not part of equality).
     """
 
     status: str
@@ -710,6 +716,7 @@ class SolveResult:
     convex_model_at_end: Optional[bool] = None
     request_id: Optional[str] = field(default=None, compare=False)
     server_timing: Optional[Dict[str, float]] = field(default=None, compare=False)
+    attempts: int = field(default=1, compare=False)
 
     @classmethod
     def from_dict(
@@ -717,6 +724,7 @@ class SolveResult:
         data: Mapping[str, Any],
         request_id: Optional[str] = None,
         server_timing: Optional[Dict[str, float]] = None,
+        attempts: int = 1,
     ) -> "SolveResult":
         """Parse a solve answer (its body; the two headers are passed apart).
 
@@ -755,6 +763,7 @@ class SolveResult:
             ),
             request_id=request_id,
             server_timing=server_timing,
+            attempts=attempts,
         )
 
     def __repr__(self) -> str:
