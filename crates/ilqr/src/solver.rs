@@ -157,6 +157,15 @@ pub struct Options {
     /// the solve has converged there, even where the gradient test cannot
     /// say so (a problem whose cost is identically zero: every step gains
     /// nothing, and without the bound the solve ends `NoProgress`).
+    ///
+    /// "Attains" is up to round-off: within machine epsilon (2.2e-16) of
+    /// the initial cost's distance from the bound. A zero optimum is rarely
+    /// reached exactly: a terminal-only cost (initial 82) came to rest at
+    /// 7.8e-34, the states 1e-17 from the goal, where the relative test
+    /// would need a gain of 1e-43 that round-off never gives; that solve
+    /// raised μ to 2e18 and ended `NoProgress`. It now converges after 8
+    /// iterations at 3.3e-17. Only a solve whose optimum lies within that
+    /// floor of the bound can stop on it.
     pub cost_lower_bound: Option<f64>,
     /// When μ passes `mu_max`, go on with the cost's convex expansion
     /// ([`Cost::stage_expand_convex`]: the obstacle terms' negative
@@ -232,7 +241,7 @@ pub enum Status {
     /// The exact Hessian's model predicts no full step would gain
     /// `tolerance·|J|`, after a full step gained less than that or without
     /// regularisation (see [`Options::tolerance`]), or the cost reached
-    /// [`Options::cost_lower_bound`]. A minimum the convex expansion finds
+    /// [`Options::cost_lower_bound`] (up to round-off). A minimum the convex expansion finds
     /// is checked with the exact Hessian first ([`Options::convex_fallback`]).
     Converged,
     /// `max_iterations` were spent first.
@@ -594,6 +603,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // (an obstacle's centre held by the guess), and calling that point
         // converged would be false.
         let mut moved = false;
+        // Whether the convex model's step was tried where it predicted
+        // nothing worth taking (see the end of the convergence tests).
+        let mut convex_step_tried = false;
 
         let status = 'outer: loop {
             // 1. Derivatives along the nominal trajectory. They change only
@@ -667,7 +679,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // converged in exactly `max_iterations` iterations, or whose
             // warm start was already optimal (`max_iterations = 0`), is
             // `Converged`, not `MaxIterations`.
-            if options.cost_lower_bound.is_some_and(|lb| cost <= lb) {
+            if options
+                .cost_lower_bound
+                .is_some_and(|lb| cost - lb <= f64::EPSILON * (initial_cost - lb))
+            {
                 break Status::Converged;
             }
             let negligible = |bw: &Backward| -(bw.dv1 + bw.dv2) <= options.tolerance * cost.abs();
@@ -722,7 +737,18 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             if minimum {
                 match (model, moved) {
                     (Model::Exact | Model::Checking, _) => break Status::Converged,
-                    (Model::Convex, false) => break Status::NoProgress,
+                    (Model::Convex, false) if convex_step_tried => break Status::NoProgress,
+                    // The convex model's first step is tried before its
+                    // prediction is trusted: at an obstacle's centre the
+                    // gradient is taken as 0 (the cone's tip has none), so
+                    // the model predicts only what the other terms gain,
+                    // while any step off the tip gains about q per metre. A
+                    // start on the centre of eleven 1e12 obstacles ended
+                    // `NoProgress` at iteration 0 at 1.1e15, with ten at
+                    // 2e13. Where the step gains nothing either (a solve
+                    // stuck at its optimum on round-off), μ rises and the
+                    // model's next negligible prediction ends the solve.
+                    (Model::Convex, false) => convex_step_tried = true,
                     // The convex model's minimum may not be the cost's: its
                     // larger curvature under-predicts what a step gains. The
                     // exact Hessian checks it, from μ_init.

@@ -565,6 +565,18 @@ fn a_cost_at_its_lower_bound_is_converged() {
     );
     assert!(solver.controls().iter().all(|u| *u == hover(1)[0]));
 
+    // A zero optimum reached up to round-off counts too. With only the
+    // terminal weights, the solve used to go on until the cost rested at
+    // 7.8e-34 (the states 1e-17 from the goal), where the relative test
+    // would need a gain round-off never gives, and end `NoProgress` at
+    // μ = 2e18. It now stops once the cost is within machine epsilon of
+    // the initial cost's distance from the bound.
+    problem.cost = tracking(goal(), 0.0, 0.0, 1.0);
+    let (_, s) = solve_problem(&problem, &bounded);
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert!(s.cost <= f64::EPSILON * s.initial_cost, "{s:?}");
+    assert!(s.iterations < 30, "{s:?}");
+
     // The seed is unaffected: same answer, same iterations.
     let (_, free) = solve_seed();
     let (_, with_bound) = solve_with(&bounded);
@@ -626,6 +638,38 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
     assert_eq!(s.cost, 1e5, "{s:?}");
     assert!(s.convexified_after.is_some(), "{s:?}");
+}
+
+/// A start on the centre of steep obstacles, with gravity and a goal away
+/// from them, is no such maximum: any step off the tip gains about q per
+/// metre. There the exact Hessian finds no μ that works, and the convex
+/// model, which sees the tip's gradient as 0, predicts only what the
+/// tracking terms gain (1e6 here, below 1e-9 of the cost of 1.1e15). That
+/// prediction used to end the solve `NoProgress` at iteration 0, at the
+/// initial guess; the convex model's step is now tried first, and gains
+/// almost all of the cost.
+#[test]
+fn a_start_on_the_centre_of_steep_obstacles_leaves_it() {
+    let centre = SVector::from([OBSTACLE[0], OBSTACLE[1], 0.0, 0.0, 0.0, 0.0]);
+    let mut problem = seed_problem(100, 0.05);
+    problem.x0 = centre;
+    let mut cost = tracking(goal(), 1.0, 0.1, 50000.0);
+    for _ in 0..11 {
+        cost = cost.with_stage(ilqr::ExpObstacle {
+            center: Vector2::from(OBSTACLE),
+            weight: 1e12,
+            position: (0, 1),
+        });
+    }
+    problem.cost = cost;
+    let (solver, s) = solve_problem(&problem, &Options::default());
+    assert!(s.iterations > 0, "{s:?}");
+    assert!(s.convexified_after.is_some(), "{s:?}");
+    // The first stage's cost (11e12 at the centre) cannot be avoided; the
+    // other 100 stages leave the centre.
+    assert!(s.cost < 0.05 * s.initial_cost, "{s:?}");
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert!((solver.states()[100] - centre).norm() > 1.0);
 }
 
 /// A start 0.1 mm from the centre of a steep obstacle (q = 1e6): `Q_uu` is
