@@ -23,6 +23,18 @@ use crate::schema;
 
 /// How a solve ended. Every status is a successful answer carrying the best
 /// trajectory found.
+///
+/// * `converged`: the model about the result predicts that a full step
+///   would gain less than `solver.tolerance` × |cost| (and the last full
+///   step gained less too, or no regularisation was needed), or the cost
+///   reached 0, its lower bound, up to round-off;
+/// * `max_iterations`: `solver.max_iterations` ran out first;
+/// * `time_limit`: the time budget (`solver.time_limit_ms`, counted from
+///   admission) ran out first;
+/// * `cancelled`: the client left, or the service was shutting down;
+/// * `no_progress`: no step could reduce the cost at any regularisation,
+///   with the exact Hessian nor (with obstacles) the convex model tried
+///   after it.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
@@ -30,7 +42,8 @@ pub enum SolveStatus {
     /// a full step would gain less than `solver.tolerance` relative to the
     /// cost, after a full step gained less than that too or with no
     /// regularisation needed; or the cost is 0, its lower bound (a global
-    /// optimum: every weight is zero, say).
+    /// optimum: every weight is zero, say), up to round-off (within machine
+    /// epsilon of the initial cost).
     Converged,
     /// `solver.max_iterations` ran out first.
     MaxIterations,
@@ -75,9 +88,13 @@ impl From<ilqr::Status> for SolveStatus {
 pub struct SolveResult {
     /// How the solve ended.
     pub status: SolveStatus,
-    /// Final cost J (same units as the weights; no ½ factors).
+    /// Final cost J: eqs. 13–15 of the paper summed over the horizon, with
+    /// no ½ factors. A weighted sum of squared errors in m², rad², (m/s)²,
+    /// (rad/s)² and N², plus the obstacle terms, so it has no single unit:
+    /// compare costs of one problem, not across weights.
     pub cost: f64,
-    /// Cost of the initial guess.
+    /// Cost of the initial guess (the initial controls rolled out), same
+    /// terms as `cost`.
     pub initial_cost: f64,
     /// Iterations performed.
     pub iterations: usize,
@@ -188,7 +205,9 @@ pub struct TraceEntry {
     pub actual_reduction: f64,
     /// Line-search step size α accepted, 0 when none was.
     pub step_size: f64,
-    /// Levenberg–Marquardt regularisation μ of the backward pass.
+    /// Levenberg–Marquardt regularisation μ of the backward pass
+    /// (`Q_uu + μI`): 0, or at least 1e-6.
+    #[schema(minimum = 0.0)]
     pub regularization: f64,
     /// Mean over steps of `max_i |d_i| / (|u_i| + 1)`.
     pub feedforward_norm: f64,
