@@ -137,3 +137,31 @@ def test_a_probe_of_a_service_that_does_not_answer_gives_up_on_its_own_timeout()
             assert client.health(timeout=0.2) is False
             assert client.ready(timeout=0.2) is False
             assert time.monotonic() - started < 2
+
+
+def test_the_proxy_environment_is_read_once_when_the_client_is_made(
+    service: ServiceProcess, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # requests reads the proxy variables on every call (0.2-0.4 ms); the
+    # client reads them when made. A proxy set then is used (nothing listens
+    # there, so the call fails), and one set later is not.
+    for name in ["no_proxy", "NO_PROXY", "all_proxy", "ALL_PROXY", "https_proxy", "HTTPS_PROXY"]:
+        monkeypatch.delenv(name, raising=False)
+    monkeypatch.setenv("HTTP_PROXY", f"http://127.0.0.1:{free_port()}")
+    monkeypatch.setenv("http_proxy", f"http://127.0.0.1:{free_port()}")
+    with Client(service.url, retries=0) as proxied:
+        assert proxied.session.trust_env is False
+        monkeypatch.delenv("HTTP_PROXY")
+        monkeypatch.delenv("http_proxy")
+        with pytest.raises(requests.exceptions.ProxyError):
+            proxied.solve(SMALL)
+    with Client(service.url, retries=0) as direct:
+        monkeypatch.setenv("HTTP_PROXY", f"http://127.0.0.1:{free_port()}")
+        assert len(direct.solve(SMALL).states) == 21
+    # NO_PROXY is honoured as requests honours it.
+    monkeypatch.setenv("NO_PROXY", "127.0.0.1")
+    with Client(service.url, retries=0) as bypassing:
+        assert len(bypassing.solve(SMALL).states) == 21
+    # A session of the caller's is left as it is.
+    with Client(service.url, retries=0, session=requests.Session()) as own:
+        assert own.session.trust_env is True

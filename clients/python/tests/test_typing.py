@@ -49,6 +49,19 @@ def test_numpy_arrays_in_every_vector_and_matrix_field_become_plain_json() -> No
     rows = Problem(initial_controls=[np.array([4.9, 4.9])] * 3, goal_state=(4, 9, 0, 0, 0, 0))
     assert rows.to_dict() == {"initial_controls": [[4.9, 4.9]] * 3, "goal_state": [4, 9, 0, 0, 0, 0]}
 
+    # Lists of plain numbers (a warm start from a result) are sent as they
+    # are; anything else in them (a numpy scalar, a tuple row, a bool) still
+    # takes the general conversion.
+    from ilqr_client.models import to_json_value
+
+    plain = [[4.9, 4.9], [5, 4.8]]
+    assert to_json_value(plain) is plain
+    mixed = [[4.9, np.float32(4.5)], (5, 4), [True, 0]]
+    converted = to_json_value(mixed)
+    assert converted == [[4.9, 4.5], [5, 4], [True, 0]]
+    assert json.loads(json.dumps(converted)) == converted
+    assert to_json_value([1.0, np.float32(2.0)]) == [1.0, 2.0]
+
 
 def test_the_feedback_policy_takes_numpy_states() -> None:
     gains = Gains(

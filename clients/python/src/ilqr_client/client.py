@@ -35,6 +35,7 @@ from __future__ import annotations
 
 import json
 import logging
+import os
 import random
 import time
 from types import TracebackType
@@ -137,7 +138,11 @@ class Client:
             retrying. See the module docs.
         session: A :class:`requests.Session` to use (for custom adapters,
             proxies, auth...). The client does not close a session it did not
-            create.
+            create, nor change how it reads the environment. A session the
+            client creates reads the proxy variables (``HTTP_PROXY``,
+            ``NO_PROXY``, ...), ``REQUESTS_CA_BUNDLE``/``CURL_CA_BUNDLE`` and
+            ``~/.netrc`` once, when the client is made, not on every call
+            as requests does (0.2-0.4 ms a call).
         backoff: First delay in seconds of the exponential backoff after a
             connection failure or a ``shutting-down`` answer (and after an
             overload answer that carries no Retry-After).
@@ -194,6 +199,27 @@ class Client:
             self.session.headers["User-Agent"] = (
                 f"ilqr-client-python/{__version__} {requests.utils.default_user_agent()}"
             )
+            self._read_environment_once()
+
+    def _read_environment_once(self) -> None:
+        """Read what requests takes from the environment now, once.
+
+        With ``trust_env`` a session looks up the proxy variables (and
+        ``no_proxy``), the CA-bundle variables and ``~/.netrc`` on every call:
+        0.2-0.4 ms a call, more than a lean seed solve. Every call goes to
+        ``base_url``'s host, so the answer is the same each time; it is kept
+        on the session and ``trust_env`` turned off. Variables changed after
+        the client was made are not seen.
+        """
+        session = self.session
+        session.proxies.update(requests.utils.get_environ_proxies(self.base_url))
+        bundle = os.environ.get("REQUESTS_CA_BUNDLE") or os.environ.get("CURL_CA_BUNDLE")
+        if bundle:
+            session.verify = bundle
+        auth = requests.utils.get_netrc_auth(self.base_url)
+        if auth:
+            session.auth = auth
+        session.trust_env = False
 
     # ------------------------------------------------------------------ #
     # Lifecycle
