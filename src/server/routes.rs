@@ -622,6 +622,13 @@ async fn solve(
                     "solve finished"
                 );
             }
+            // The client left (the flag is set by the handler's drop, or by
+            // a shutdown, which still answers): nobody reads the answer, and
+            // encoding a long horizon's would hold this worker for
+            // milliseconds more.
+            if cancel.load(std::sync::atomic::Ordering::SeqCst) && !state.is_draining() {
+                return None;
+            }
             // Serialised and compressed here too: a long horizon's result
             // is megabytes of JSON, CPU work the async runtime should not do.
             // It comes after the budget (tens of ms at N = 10000, see
