@@ -386,3 +386,19 @@ def test_answers_decode_the_same_with_and_without_orjson(client: Client, service
     assert fast.trace[-1].elapsed_ms == plain.trace[-1].elapsed_ms
     # And through the client, which decodes with orjson.
     assert client.solve(problem).cost == fast.cost
+
+
+def test_shifted_controls_is_the_receding_horizon_warm_start(seed_result: SolveResult) -> None:
+    controls = seed_result.controls
+    shifted = seed_result.shifted_controls()
+    assert shifted == controls[1:] + controls[-1:]
+    assert len(shifted) == seed_result.horizon
+    assert seed_result.shifted_controls(3) == controls[3:] + [controls[-1]] * 3
+    assert seed_result.shifted_controls(0) == controls
+    assert seed_result.shifted_controls(100) == [controls[-1]] * 100
+    # New lists: editing the warm start leaves the (frozen) result alone.
+    shifted[0][0] = -1.0
+    assert seed_result.controls[1][0] != -1.0
+    for bad in [-1, 101, 1.5, True]:
+        with pytest.raises(ValueError, match="steps must be an integer from 0 to the horizon 100"):
+            seed_result.shifted_controls(bad)  # type: ignore[arg-type]

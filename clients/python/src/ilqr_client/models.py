@@ -816,6 +816,25 @@ class SolveResult:
         """Number of control steps N."""
         return len(self.controls)
 
+    def shifted_controls(self, steps: int = 1) -> List[List[float]]:
+        """The controls moved ``steps`` knots earlier, the last one repeated
+        to keep N rows: the warm start for re-solving ``steps`` knots later
+        (receding-horizon MPC), as ``initial_controls``.
+
+        ``result.shifted_controls()`` is ``result.controls[1:] +
+        result.controls[-1:]``, as new lists.
+
+        Raises:
+            ValueError: unless ``0 <= steps <= N``.
+        """
+        n = len(self.controls)
+        if isinstance(steps, bool) or not isinstance(steps, int) or not 0 <= steps <= n:
+            raise ValueError(f"steps must be an integer from 0 to the horizon {n}, got {steps!r}")
+        if n == 0:
+            return []
+        kept = self.controls[steps:]
+        return [list(u) for u in kept] + [list(self.controls[-1]) for _ in range(steps)]
+
     @property
     def positions(self) -> List[Tuple[float, float]]:
         """The trajectory's ``(x, y)`` positions, N + 1 of them."""
