@@ -20,8 +20,11 @@
 //!   otherwise after), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
-//! * `solves_running`, gauge: solves running (on a worker, or on a thread
-//!   of their own when their budget ran out in the queue);
+//! * `solves_running`, gauge: solves admitted and out of the queue: on a
+//!   worker, or, when their budget ran out in the queue, answered from the
+//!   initial guess on a thread of their own (they may wait for it, so this
+//!   can exceed `solve_workers`; read with `solve_queue_depth`, under one
+//!   lock);
 //! * `solve_workers`, `solve_queue_capacity`, gauges: `--workers` and
 //!   `--queue-capacity`, so that a dashboard can show how full the pool is,
 //!   `(solves_running + solve_queue_depth) / (solve_workers +
@@ -131,7 +134,7 @@ fn describe() {
     describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
     describe_gauge!(
         "solves_running",
-        "Solves running, on a worker or (budget spent in the queue) on a thread of their own"
+        "Solves out of the queue: on a worker, or (budget spent in the queue) answered from the guess on a thread of their own"
     );
     describe_gauge!("solve_workers", "Solver worker threads (--workers)");
     describe_gauge!(

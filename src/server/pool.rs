@@ -161,11 +161,14 @@ impl Pool {
         self.shared.lock().queue.len()
     }
 
-    /// Jobs running: on a worker, or claimed by their caller
-    /// ([`Ticket::claim`]) and run on a thread of its own, so this may
-    /// briefly exceed [`Pool::workers`].
-    pub fn running(&self) -> usize {
-        self.shared.lock().running
+    /// `(running, waiting)`, read under one lock so that a job moving from
+    /// the queue to a worker is not counted in both. Running includes jobs
+    /// claimed by their caller ([`Ticket::claim`]), which run (or wait to
+    /// run) on a thread of their own, so it can exceed [`Pool::workers`]
+    /// (up to `workers + capacity`).
+    pub fn counts(&self) -> (usize, usize) {
+        let st = self.shared.lock();
+        (st.running, st.queue.len())
     }
 
     /// Number of worker threads.
@@ -334,6 +337,7 @@ mod tests {
         let (mut busy, release) = block_a_worker(&pool);
         let mut queued = pool.submit(|waited| waited).unwrap(); // takes the one slot
         assert_eq!(pool.queue_depth(), 1);
+        assert_eq!(pool.counts(), (1, 1)); // one running, one waiting
         assert!(matches!(pool.submit(|_| ()), Err(Full)));
         std::thread::sleep(Duration::from_millis(20));
         release.send(()).unwrap();
@@ -343,6 +347,7 @@ mod tests {
         assert!(done.queued >= Duration::from_millis(20));
         assert_eq!(done.outcome, Ok(done.queued));
         assert_eq!(pool.queue_depth(), 0);
+        assert_eq!(pool.counts(), (0, 0));
     }
 
     #[tokio::test]

@@ -957,8 +957,9 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
     responses((status = 200, description = "Prometheus text format", body = String, content_type = "text/plain"))
 )]
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
-    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    ::metrics::gauge!("solves_running").set(st.pool.running() as f64);
+    let (running, waiting) = st.pool.counts();
+    ::metrics::gauge!("solve_queue_depth").set(waiting as f64);
+    ::metrics::gauge!("solves_running").set(running as f64);
     ::metrics::gauge!("solve_workers").set(st.pool.workers() as f64);
     ::metrics::gauge!("solve_queue_capacity").set(st.pool.capacity() as f64);
     ::metrics::gauge!("request_body_bytes_held").set(st.bodies.used() as f64);

@@ -64,6 +64,15 @@ fn poll_due(done: usize) -> bool {
     (done + 1).is_multiple_of(POLL_EVERY)
 }
 
+/// How close to [`Options::cost_lower_bound`], relative to the initial
+/// cost's distance from it, counts as attaining it: machine epsilon
+/// squared (4.9e-32). The cost is quadratic in the errors, so errors at
+/// round-off relative to the start give a cost at about ε² relative to the
+/// initial cost. Plain ε was too coarse: it scales with the guess, and a
+/// guess of 1e7 N per rotor (initial cost 3.6e21) then counted 7.3e5 as
+/// converged, against an optimum of 5.4e3.
+const ROUND_OFF_FLOOR: f64 = f64::EPSILON * f64::EPSILON;
+
 /// Trace rows reserved before the loop: 10000 rows of 80 B, 800 KB. The
 /// loop allocates only if a solve runs more iterations than that.
 const TRACE_RESERVE: usize = 10_000;
@@ -158,14 +167,14 @@ pub struct Options {
     /// say so (a problem whose cost is identically zero: every step gains
     /// nothing, and without the bound the solve ends `NoProgress`).
     ///
-    /// "Attains" is up to round-off: within machine epsilon (2.2e-16) of
-    /// the initial cost's distance from the bound. A zero optimum is rarely
-    /// reached exactly: a terminal-only cost (initial 82) came to rest at
-    /// 7.8e-34, the states 1e-17 from the goal, where the relative test
-    /// would need a gain of 1e-43 that round-off never gives; that solve
-    /// raised μ to 2e18 and ended `NoProgress`. It now converges after 8
-    /// iterations at 3.3e-17. Only a solve whose optimum lies within that
-    /// floor of the bound can stop on it.
+    /// "Attains" is up to round-off: within ε² (4.9e-32) of the initial
+    /// cost's distance from the bound ([`ROUND_OFF_FLOOR`]). A zero optimum
+    /// is rarely reached exactly: a terminal-only cost (initial 82) came to
+    /// rest at 7.8e-34, the states 1e-17 from the goal, where the relative
+    /// test would need a gain of 1e-43 that round-off never gives; that
+    /// solve raised μ to 2e18 and ended `NoProgress`. Only a solve whose
+    /// optimum lies within that floor of the bound can stop on it (or one
+    /// whose guess is about 1e16 times as costly as its optimum).
     pub cost_lower_bound: Option<f64>,
     /// When μ passes `mu_max`, go on with the cost's convex expansion
     /// ([`Cost::stage_expand_convex`]: the obstacle terms' negative
@@ -604,7 +613,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // converged would be false.
         let mut moved = false;
         // Whether the convex model's step was tried where it predicted
-        // nothing worth taking (see the end of the convergence tests).
+        // nothing worth taking (see the end of the convergence tests); once
+        // per change of `model`.
         let mut convex_step_tried = false;
 
         let status = 'outer: loop {
@@ -660,6 +670,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                             // must find it for itself.
                             (mu, delta, stale, converged, moved) =
                                 (options.mu_init, 1.0, true, false, false);
+                            convex_step_tried = false;
                             continue 'outer;
                         }
                         // Raising μ can take a dozen passes (μ from 1 past
@@ -681,7 +692,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // `Converged`, not `MaxIterations`.
             if options
                 .cost_lower_bound
-                .is_some_and(|lb| cost - lb <= f64::EPSILON * (initial_cost - lb))
+                .is_some_and(|lb| cost - lb <= ROUND_OFF_FLOOR * (initial_cost - lb))
             {
                 break Status::Converged;
             }
@@ -746,8 +757,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     // start on the centre of eleven 1e12 obstacles ended
                     // `NoProgress` at iteration 0 at 1.1e15, with ten at
                     // 2e13. Where the step gains nothing either (a solve
-                    // stuck at its optimum on round-off), μ rises and the
-                    // model's next negligible prediction ends the solve.
+                    // stuck at its optimum on round-off, a guess held on a
+                    // tip), the solve ends `NoProgress` after that one
+                    // iteration (after the line search below).
                     (Model::Convex, false) => convex_step_tried = true,
                     // The convex model's minimum may not be the cost's: its
                     // larger curvature under-predicts what a step gains. The
@@ -756,6 +768,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         model = Model::Checking;
                         (mu, delta, stale, converged, moved) =
                             (options.mu_init, 1.0, true, false, false);
+                        convex_step_tried = false;
                         continue 'outer;
                     }
                 }
@@ -864,6 +877,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             }
             row.elapsed = start.elapsed();
             self.trace.push(row);
+            // The convex model's trial step (below its negligible
+            // prediction) found nothing either: the model stands, and
+            // raising μ to its maximum would only shrink the same step (14
+            // more passes, each with a full line search).
+            if !accepted && convex_step_tried && model == Model::Convex && !moved {
+                break Status::NoProgress;
+            }
             if mu > options.mu_max {
                 if let Err(status) = fall_back(
                     problem,
@@ -874,6 +894,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     break status;
                 }
                 (mu, delta, stale, converged, moved) = (options.mu_init, 1.0, true, false, false);
+                convex_step_tried = false;
             }
         };
 

@@ -569,13 +569,24 @@ fn a_cost_at_its_lower_bound_is_converged() {
     // terminal weights, the solve used to go on until the cost rested at
     // 7.8e-34 (the states 1e-17 from the goal), where the relative test
     // would need a gain round-off never gives, and end `NoProgress` at
-    // μ = 2e18. It now stops once the cost is within machine epsilon of
-    // the initial cost's distance from the bound.
+    // μ = 2e18.
     problem.cost = tracking(goal(), 0.0, 0.0, 1.0);
-    let (_, s) = solve_problem(&problem, &bounded);
+    let (solver, s) = solve_problem(&problem, &bounded);
     assert_eq!(s.status, Status::Converged, "{s:?}");
-    assert!(s.cost <= f64::EPSILON * s.initial_cost, "{s:?}");
     assert!(s.iterations < 30, "{s:?}");
+    assert!((solver.states()[100] - goal()).norm() < 1e-12, "{s:?}");
+    let (_, unbounded) = solve_problem(&problem, &Options::default());
+    assert_eq!(unbounded.status, Status::NoProgress, "{unbounded:?}");
+
+    // The floor scales with the initial cost, so a wild guess must not
+    // lift it to the optimum's level: from 1e7 N per rotor (initial cost
+    // 3.6e21) a floor of ε rather than ε² called 7.3e5 converged, with
+    // the optimum near 5.4e3.
+    let seed = seed_problem(100, 0.05);
+    let (_, wild) = solve_from(&seed, &[Vector2::repeat(1e7); 100], &bounded);
+    assert!(wild.initial_cost > 1e21, "{wild:?}");
+    assert_eq!(wild.status, Status::Converged, "{wild:?}");
+    assert!(wild.cost < 6000.0, "{wild:?}");
 
     // The seed is unaffected: same answer, same iterations.
     let (_, free) = solve_seed();
@@ -638,6 +649,9 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
     assert_eq!(s.status, Status::NoProgress, "{s:?}");
     assert_eq!(s.cost, 1e5, "{s:?}");
     assert!(s.convexified_after.is_some(), "{s:?}");
+    // The convex model's one trial step (it predicts nothing) costs one
+    // iteration, not a climb of μ to its maximum (14 more).
+    assert_eq!(s.iterations, s.convexified_after.unwrap() + 1, "{s:?}");
 }
 
 /// A start on the centre of steep obstacles, with gravity and a goal away
