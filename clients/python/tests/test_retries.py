@@ -165,3 +165,29 @@ def test_the_proxy_environment_is_read_once_when_the_client_is_made(
     # A session of the caller's is left as it is.
     with Client(service.url, retries=0, session=requests.Session()) as own:
         assert own.session.trust_env is True
+
+
+def test_netrc_credentials_go_to_the_service_only(
+    service: ServiceProcess, monkeypatch: pytest.MonkeyPatch, tmp_path: Path
+) -> None:
+    # Read once, like the proxies, and sent with the client's own requests;
+    # the session itself must not carry them to another host.
+    netrc = tmp_path / "netrc"
+    netrc.write_text("machine 127.0.0.1 login svc password s3cret\n")
+    netrc.chmod(0o600)
+    monkeypatch.setenv("NETRC", str(netrc))
+    sent: List[str] = []
+    with Client(service.url, retries=0) as client:
+        client.session.hooks["response"].append(
+            lambda r, *args, **kwargs: sent.append(r.request.headers.get("Authorization", ""))
+        )
+        assert len(client.solve(SMALL).states) == 21
+        assert client.health()
+        assert sent[0].startswith("Basic ") and sent[1] == sent[0], sent
+        assert client.session.auth is None
+        other = client.session.prepare_request(requests.Request("GET", "http://example.invalid/x"))
+        assert "Authorization" not in other.headers
+        # An auth the caller puts on the session wins, as in requests.
+        client.session.auth = ("mine", "pw")
+        client.solve(SMALL)
+        assert sent[-1] != sent[0] and sent[-1].startswith("Basic "), sent

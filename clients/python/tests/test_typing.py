@@ -55,7 +55,8 @@ def test_numpy_arrays_in_every_vector_and_matrix_field_become_plain_json() -> No
     from ilqr_client.models import to_json_value
 
     plain = [[4.9, 4.9], [5, 4.8]]
-    assert to_json_value(plain) is plain
+    sent = to_json_value(plain)
+    assert sent == plain and sent is not plain and sent[0] is not plain[0]
     mixed = [[4.9, np.float32(4.5)], (5, 4), [True, 0]]
     converted = to_json_value(mixed)
     assert converted == [[4.9, 4.5], [5, 4], [True, 0]]

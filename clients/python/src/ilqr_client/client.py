@@ -152,11 +152,12 @@ class Client:
             retrying. See the module docs.
         session: A :class:`requests.Session` to use (for custom adapters,
             proxies, auth...). The client does not close a session it did not
-            create, nor change how it reads the environment. A session the
-            client creates reads the proxy variables (``HTTP_PROXY``,
+            create, nor change how it reads the environment. For a session
+            it creates, the client reads the proxy variables (``HTTP_PROXY``,
             ``NO_PROXY``, ...), ``REQUESTS_CA_BUNDLE``/``CURL_CA_BUNDLE`` and
-            ``~/.netrc`` once, when the client is made, not on every call
-            as requests does (0.2-0.4 ms a call).
+            ``~/.netrc`` for ``base_url`` once, when it is made, not on every
+            call as requests does (0.2-0.4 ms a call), and applies them to
+            its own requests only: that session has ``trust_env`` off.
         backoff: First delay in seconds of the exponential backoff after a
             connection failure or a ``shutting-down`` answer (and after an
             overload answer that carries no Retry-After).
@@ -209,6 +210,10 @@ class Client:
         self.compress = compress
         self._owns_session = session is None
         self.session = session if session is not None else requests.Session()
+        # What requests would read from the environment on every call (see
+        # _read_environment_once); empty for a session of the caller's.
+        self._environment: Dict[str, Any] = {}
+        self._netrc_auth: Optional[Tuple[str, str]] = None
         if self._owns_session:
             self.session.headers["User-Agent"] = (
                 f"ilqr-client-python/{__version__} {requests.utils.default_user_agent()}"
@@ -222,18 +227,26 @@ class Client:
         ``no_proxy``), the CA-bundle variables and ``~/.netrc`` on every call:
         0.2-0.4 ms a call, more than a lean seed solve. Every call goes to
         ``base_url``'s host, so the answer is the same each time; it is kept
-        on the session and ``trust_env`` turned off. Variables changed after
-        the client was made are not seen.
+        by the client, passed with each of its requests, and the session's
+        ``trust_env`` is turned off. Variables changed after the client was
+        made are not seen, and ``client.session`` used directly reads none.
         """
-        session = self.session
-        session.proxies.update(requests.utils.get_environ_proxies(self.base_url))
+        # Kept apart and passed with each of the client's own requests, not
+        # set on the session: `client.session` used for another host must
+        # not carry this host's netrc credentials or proxy choice.
+        self._environment["proxies"] = requests.utils.get_environ_proxies(self.base_url)
         bundle = os.environ.get("REQUESTS_CA_BUNDLE") or os.environ.get("CURL_CA_BUNDLE")
         if bundle:
-            session.verify = bundle
-        auth = requests.utils.get_netrc_auth(self.base_url)
-        if auth:
-            session.auth = auth
-        session.trust_env = False
+            self._environment["verify"] = bundle
+        self._netrc_auth = requests.utils.get_netrc_auth(self.base_url)
+        self.session.trust_env = False
+
+    def _settings(self) -> Dict[str, Any]:
+        """The environment's settings for one of the client's requests, with
+        requests' precedence: netrc only where the session has no auth."""
+        if self._netrc_auth is not None and self.session.auth is None:
+            return {**self._environment, "auth": self._netrc_auth}
+        return self._environment
 
     # ------------------------------------------------------------------ #
     # Lifecycle
@@ -395,7 +408,7 @@ class Client:
 
     def _probe(self, path: str, timeout: TimeoutSpec) -> bool:
         try:
-            response = self.session.get(self._url(path), timeout=timeout)
+            response = self.session.get(self._url(path), timeout=timeout, **self._settings())
         except requests.RequestException as exc:
             logger.debug("GET %s failed: %s", path, exc)
             return False
@@ -430,7 +443,8 @@ class Client:
         while True:
             try:
                 response = self.session.request(
-                    method, url, data=data, headers=all_headers, timeout=effective_timeout
+                    method, url, data=data, headers=all_headers, timeout=effective_timeout,
+                    **self._settings(),
                 )
             except requests.exceptions.SSLError:
                 raise  # a certificate problem does not go away by retrying

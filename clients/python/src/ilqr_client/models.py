@@ -89,8 +89,10 @@ def to_json_value(value: Any) -> Any:
     if type(value) is list and _plain_numbers(value):
         # Already JSON: a warm start's `result.controls[1:] + ...` (N rows of
         # two floats) took 0.15-0.3 ms through the general walk below, more
-        # than a lean seed solve; checked in place it takes a few µs.
-        return value
+        # than a lean seed solve; checked in place it takes a few µs. Copied
+        # row by row, as the walk does, so a document shares no list with
+        # the problem it came from.
+        return [item[:] if type(item) is list else item for item in value]
     # Only this module's request dataclasses go through ``to_dict``: pandas
     # objects have one too, which gives a Series as {index: value}, not an
     # array. Any other dataclass falls through to the TypeError below.
