@@ -235,7 +235,10 @@ pub struct SolverSpec {
     /// (60000 unless configured). Unset: the service's default (10000
     /// unless configured; the CLI has none).
     #[serde(deserialize_with = "de_millis")]
-    #[schema(minimum = 1)]
+    // The service's default maximum (`--max-time-limit-ms`); the served
+    // spec puts the configured one here (tests/openapi.rs checks the two
+    // agree).
+    #[schema(minimum = 1, maximum = 60000)]
     pub time_limit_ms: Option<u64>,
     /// `ilqr` (default: the paper's algorithm) or `ddp` (the dynamics'
     /// second derivatives kept in the backward pass; fewer iterations where

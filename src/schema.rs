@@ -113,9 +113,10 @@ pub fn initial_controls() -> Schema {
         .schema_type(SchemaType::from_iter([Type::Array, Type::Null]))
         .items(fixed(2, number_in(-MAX_CONTROL, MAX_CONTROL)))
         .description(Some(
-            "Initial guess for the controls: one [u1, u2] row per step (N rows), rotor \
-             thrusts in N of magnitude at most 1e12. Absent or null: hover thrust m·g/2 on \
-             both rotors.",
+            "Initial guess for the controls: one [u1, u2] row per step, rotor thrusts in N \
+             of magnitude at most 1e12. Exactly `horizon` rows: checked by the service (a \
+             422 at /initial_controls), since a schema cannot tie an array's length to \
+             another member. Absent or null: hover thrust m·g/2 on both rotors.",
         ))
         .build()
         .into()

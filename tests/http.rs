@@ -1201,13 +1201,20 @@ async fn the_served_spec_states_this_servers_limits() {
         serde_json::from_str(&std::fs::read_to_string(path).unwrap()).unwrap();
     let schemas = &mut expected["components"]["schemas"];
     schemas["ProblemSpec"]["properties"]["horizon"]["maximum"] = json!(500);
+    let horizon = &mut schemas["ProblemSpec"]["properties"]["horizon"]["description"];
+    *horizon = json!(format!(
+        "{} This server's maximum: 500.",
+        horizon.as_str().unwrap()
+    ));
     let ms = &mut schemas["SolverSpec"]["properties"]["time_limit_ms"];
     ms["maximum"] = json!(2000);
-    ms["default"] = json!(1500);
-    // Wherever the spec repeats the default.
-    let problem = &mut schemas["ProblemSpec"];
-    problem["properties"]["solver"]["default"]["time_limit_ms"] = json!(1500);
-    problem["example"]["solver"]["time_limit_ms"] = json!(1500);
+    // The default budget in words only: as a schema default, generated
+    // clients sent it, overriding the server's.
+    assert!(ms.get("default").is_none(), "{ms}");
+    ms["description"] = json!(format!(
+        "{} This server's default: 1500 ms; its maximum: 2000 ms.",
+        ms["description"].as_str().unwrap()
+    ));
     // And where it is served from (the committed file is not served).
     expected["servers"] = json!([{
         "url": ".",

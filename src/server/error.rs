@@ -19,12 +19,19 @@ pub const PROBLEM_JSON: &str = "application/problem+json";
 /// An RFC 9457 problem document.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct Problem {
-    /// A URI naming the kind of problem, e.g. `urn:ilqr-service:validation`.
+    /// A URI naming the kind of problem, `urn:ilqr-service:` and one of
+    /// `validation` (422), `malformed-json` (400), `unreadable-body` (400),
+    /// `request-timeout` (408), `payload-too-large` (413),
+    /// `unsupported-media-type` (415), `not-found` (404),
+    /// `method-not-allowed` (405), `overloaded` (503, retry after
+    /// `retry_after`), `shutting-down` (503, retry on another instance) or
+    /// `internal` (500). A string, not an enum: kinds may be added.
     #[serde(rename = "type")]
     pub kind: String,
     /// Short summary of the kind of problem.
     pub title: String,
     /// The HTTP status code.
+    #[schema(minimum = 400, maximum = 599)]
     pub status: u16,
     /// What went wrong in this request.
     pub detail: String,

@@ -120,7 +120,81 @@ fn with_docs_routes(mut spec: utoipa::openapi::OpenApi) -> utoipa::openapi::Open
             Type::String,
         ),
     );
-    with_request_id_header(spec)
+    with_request_id_header(for_generators(spec))
+}
+
+/// What code generators need beyond what utoipa derives (found by
+/// generating clients with openapi-python-client, datamodel-code-generator
+/// and openapi-generator):
+///
+/// * a 404 and a 405 problem on every operation: any route answers them (a
+///   wrong base URL or path prefix, a wrong method), and a generated client
+///   dropped the problem document of an undeclared status (`None`);
+/// * no object `default` on a property that is a `$ref`: utoipa
+///   writes the whole default object there, which openapi-generator turns
+///   into Go that does not compile, while the referenced schema already has
+///   a default per field;
+/// * `Retry-After`'s schema says at least 1, as its description does
+///   (utoipa's response headers take a description only).
+fn for_generators(spec: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
+    use serde_json::{Value, json};
+    let Ok(mut doc) = serde_json::to_value(&spec) else {
+        return spec;
+    };
+    let problem = |description: &str| {
+        json!({
+            "description": description,
+            "content": {super::error::PROBLEM_JSON: {"schema": {"$ref": "#/components/schemas/Problem"}}}
+        })
+    };
+    if let Some(paths) = doc.get_mut("paths").and_then(Value::as_object_mut) {
+        for item in paths.values_mut().filter_map(Value::as_object_mut) {
+            for operation in item.values_mut() {
+                let Some(responses) = operation
+                    .get_mut("responses")
+                    .and_then(Value::as_object_mut)
+                else {
+                    continue;
+                };
+                responses.entry("404").or_insert_with(|| {
+                    problem("No such route: a wrong path, or a wrong base URL or path prefix")
+                });
+                responses.entry("405").or_insert_with(|| {
+                    let mut answer = problem("A method this path does not answer");
+                    answer["headers"] = json!({"Allow": {
+                        "description": "The methods this path answers, e.g. `GET,HEAD`",
+                        "schema": {"type": "string"}
+                    }});
+                    answer
+                });
+            }
+        }
+    }
+    if let Some(schemas) = doc
+        .pointer_mut("/components/schemas")
+        .and_then(Value::as_object_mut)
+    {
+        for schema in schemas.values_mut() {
+            let Some(properties) = schema.get_mut("properties").and_then(Value::as_object_mut)
+            else {
+                continue;
+            };
+            for property in properties.values_mut().filter_map(Value::as_object_mut) {
+                if property.contains_key("$ref")
+                    && property.get("default").is_some_and(Value::is_object)
+                {
+                    property.remove("default");
+                }
+            }
+        }
+    }
+    if let Some(retry_after) = doc
+        .pointer_mut("/paths/~1solve/post/responses/503/headers/Retry-After/schema")
+        .and_then(Value::as_object_mut)
+    {
+        retry_after.insert("minimum".into(), 1.into());
+    }
+    serde_json::from_value(doc).unwrap_or(spec)
 }
 
 /// Declares `x-request-id` on every response of every operation, since the
@@ -172,11 +246,11 @@ fn is_http_layer_status(status: &str) -> bool {
 }
 
 /// The spec as this server serves it: the limits its configuration sets
-/// (`--max-horizon`, `--max-time-limit-ms`, `--default-time-limit-ms`) in
-/// place of the code's, so that a client validating against the served
-/// spec gets this server's bounds, and a relative `servers` entry. The
-/// committed `openapi/openapi.json` and `ilqr-service openapi` keep the
-/// code's (no time limit maximum, as for the CLI).
+/// (`--max-horizon`, `--max-time-limit-ms`) in place of the code's
+/// defaults, and with `--default-time-limit-ms` in the budget's
+/// description, so that a client validating against the served spec gets
+/// this server's bounds; and a relative `servers` entry. The committed
+/// `openapi/openapi.json` and `ilqr-service openapi` keep the defaults.
 fn with_limits(
     config: &super::Config,
 ) -> impl FnOnce(utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi + use<> {
@@ -189,29 +263,37 @@ fn with_limits(
         let Ok(mut doc) = serde_json::to_value(&spec) else {
             return spec;
         };
+        // Each limit and this server's default budget in the description
+        // too: a generated client shows descriptions, not the code's. The
+        // budget's default stays null ("the service's default"): a default
+        // of 10000 in the schema made a generated client send it, overriding
+        // a server configured differently (a 422 where its maximum was 5000).
+        let append = |doc: &mut serde_json::Value, pointer: &str, text: String| {
+            if let Some(serde_json::Value::String(description)) = doc.pointer_mut(pointer) {
+                description.push_str(&text);
+            }
+        };
         if let Some(horizon) =
             doc.pointer_mut("/components/schemas/ProblemSpec/properties/horizon/maximum")
         {
             *horizon = max_horizon.into();
         }
+        append(
+            &mut doc,
+            "/components/schemas/ProblemSpec/properties/horizon/description",
+            format!(" This server's maximum: {max_horizon}."),
+        );
         if let Some(ms) = doc
             .pointer_mut("/components/schemas/SolverSpec/properties/time_limit_ms")
             .and_then(serde_json::Value::as_object_mut)
         {
             ms.insert("maximum".into(), max_ms.into());
-            ms.insert("default".into(), default_ms.into());
         }
-        // The same default where the problem's schema repeats it: the
-        // `solver` member's default and the example (the code's say null,
-        // "the service's default"; this service's is known).
-        for pointer in [
-            "/components/schemas/ProblemSpec/properties/solver/default/time_limit_ms",
-            "/components/schemas/ProblemSpec/example/solver/time_limit_ms",
-        ] {
-            if let Some(ms) = doc.pointer_mut(pointer) {
-                *ms = default_ms.into();
-            }
-        }
+        append(
+            &mut doc,
+            "/components/schemas/SolverSpec/properties/time_limit_ms/description",
+            format!(" This server's default: {default_ms} ms; its maximum: {max_ms} ms."),
+        );
         // Without `servers`, OpenAPI's default is `/`, the host's root:
         // Swagger UI's "Try it out" behind a proxy that adds a path prefix
         // then posts to `host/solve`, outside the prefix. `.` is relative
@@ -548,7 +630,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
         (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, the request bodies being received hold the server's memory budget for bodies, or the answers still being sent to slow readers hold the budget for answers: refused before solving when they hold all of it, otherwise the solve ran and its answer was dropped) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
-            headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1)"))),
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1). Sent with `overloaded` only: a `shutting-down` answer has none and closes the connection (retry on a new one, which a load balancer sends to another instance)"))),
     )
 )]
 async fn solve(
@@ -914,7 +996,7 @@ async fn default_problem(State(st): State<Arc<AppState>>) -> Json<ProblemSpec> {
 /// Liveness or readiness answer.
 #[derive(Debug, Serialize, ToSchema)]
 pub struct Health {
-    /// `ok` or `ready`.
+    /// `ok` (`/healthz`) or `ready` (`/readyz`).
     pub status: &'static str,
 }
 
