@@ -114,7 +114,7 @@ pub fn initial_controls() -> Schema {
         .items(fixed(2, number_in(-MAX_CONTROL, MAX_CONTROL)))
         .description(Some(
             "Initial guess for the controls: one [u1, u2] row per step, rotor thrusts in N \
-             of magnitude at most 1e12. Exactly `horizon` rows: checked by the service (a \
+             of magnitude at most 1e12. Exactly horizon rows: checked by the service (a \
              422 at /initial_controls), since a schema cannot tie an array's length to \
              another member. Absent or null: hover thrust m·g/2 on both rotors.",
         ))

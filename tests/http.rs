@@ -1215,6 +1215,8 @@ async fn the_served_spec_states_this_servers_limits() {
         "{} This server's default: 1500 ms; its maximum: 2000 ms.",
         ms["description"].as_str().unwrap()
     ));
+    // The example is what GET /problems/default gives, budget included.
+    schemas["ProblemSpec"]["example"]["solver"]["time_limit_ms"] = json!(1500);
     // And where it is served from (the committed file is not served).
     expected["servers"] = json!([{
         "url": ".",

@@ -294,6 +294,14 @@ fn with_limits(
             "/components/schemas/SolverSpec/properties/time_limit_ms/description",
             format!(" This server's default: {default_ms} ms; its maximum: {max_ms} ms."),
         );
+        // The example is the seed problem as GET /problems/default gives
+        // it, with this server's budget filled in (an example is not sent
+        // by generated clients, unlike a default).
+        if let Some(ms) =
+            doc.pointer_mut("/components/schemas/ProblemSpec/example/solver/time_limit_ms")
+        {
+            *ms = default_ms.into();
+        }
         // Without `servers`, OpenAPI's default is `/`, the host's root:
         // Swagger UI's "Try it out" behind a proxy that adds a path prefix
         // then posts to `host/solve`, outside the prefix. `.` is relative
