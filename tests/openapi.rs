@@ -55,6 +55,10 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
                     "{method} {path} {status}"
                 );
             }
+            assert!(
+                operation["responses"]["405"]["headers"]["Allow"].is_object(),
+                "{method} {path}: 405 without Allow"
+            );
         }
     }
     // No default object beside a $ref (openapi-generator's Go did not

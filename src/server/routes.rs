@@ -159,13 +159,12 @@ fn for_generators(spec: utoipa::openapi::OpenApi) -> utoipa::openapi::OpenApi {
                 responses.entry("404").or_insert_with(|| {
                     problem("No such route: a wrong path, or a wrong base URL or path prefix")
                 });
-                responses.entry("405").or_insert_with(|| {
-                    let mut answer = problem("A method this path does not answer");
-                    answer["headers"] = json!({"Allow": {
-                        "description": "The methods this path answers, e.g. `GET,HEAD`",
-                        "schema": {"type": "string"}
-                    }});
-                    answer
+                let answer = responses
+                    .entry("405")
+                    .or_insert_with(|| problem("A method this path does not answer"));
+                answer["headers"]["Allow"] = json!({
+                    "description": "The methods this path answers, e.g. `GET,HEAD`",
+                    "schema": {"type": "string"}
                 });
             }
         }
