@@ -1546,6 +1546,18 @@ async fn a_client_that_stops_reading_its_answer_is_disconnected() {
     );
 }
 
+/// A server whose answers (and bodies) may hold `budget` bytes at once,
+/// with bodies up to 1 MiB and a read timeout long enough that a stalled
+/// reader is not cut off during a test.
+async fn answer_budget_server(budget: usize) -> Server {
+    Server::start(Config {
+        max_body_bytes: 1 << 20,
+        max_inflight_body_bytes: Some(budget),
+        ..read_timeout(60)
+    })
+    .await
+}
+
 /// The answers being sent hold at most `--max-inflight-body-bytes` (8 MiB
 /// here): while a client that does not read holds a 4.6 MB answer, the
 /// next large answer is a 503 `overloaded` saying why (its solve ran), a
@@ -1553,35 +1565,18 @@ async fn a_client_that_stops_reading_its_answer_is_disconnected() {
 /// one is answered again.
 #[tokio::test]
 async fn answers_waiting_for_slow_readers_are_bounded() {
-    let s = Server::start(Config {
-        max_body_bytes: 1 << 20,
-        max_inflight_body_bytes: Some(8 << 20),
-        ..read_timeout(60)
-    })
-    .await;
+    let s = answer_budget_server(8 << 20).await;
     let large = large_answer_problem();
     let stalled = post_without_reading(s.addr, &large).await;
-    let held = || async {
-        let metrics = s.get("/metrics").await.text().await.unwrap();
-        metrics
-            .lines()
-            .find_map(|l| l.strip_prefix("answer_bytes_held "))
-            .map(|v| v.parse::<f64>().unwrap())
-    };
+    let held = || counter(&s, "answer_bytes_held ");
     let t = Instant::now();
-    while !held().await.is_some_and(|bytes| bytes > 4e6) {
+    while held().await <= 4e6 {
         assert!(t.elapsed() < Duration::from_secs(10), "{:?}", held().await);
         tokio::time::sleep(Duration::from_millis(20)).await;
     }
     // Counters are process-wide (tests run in parallel): compared, not
     // matched.
-    let rejected = || async {
-        let metrics = s.get("/metrics").await.text().await.unwrap();
-        metrics
-            .lines()
-            .find_map(|l| l.strip_prefix("solve_rejections_total{reason=\"answer_budget\"} "))
-            .map_or(0.0, |v| v.parse::<f64>().unwrap())
-    };
+    let rejected = || counter(&s, "solve_rejections_total{reason=\"answer_budget\"} ");
     let before = rejected().await;
     let p = problem_of(s.post(&large).await, StatusCode::SERVICE_UNAVAILABLE).await;
     assert_eq!(p["type"], "urn:ilqr-service:overloaded", "{p}");
@@ -1608,12 +1603,7 @@ async fn answers_waiting_for_slow_readers_are_bounded() {
 /// could solve would be sent.
 #[tokio::test]
 async fn a_full_answer_budget_refuses_before_solving() {
-    let s = Server::start(Config {
-        max_body_bytes: 1 << 20,
-        max_inflight_body_bytes: Some(1 << 20),
-        ..read_timeout(60)
-    })
-    .await;
+    let s = answer_budget_server(1 << 20).await;
     let stalled = post_without_reading(s.addr, &large_answer_problem()).await;
     let t = Instant::now();
     let p = loop {

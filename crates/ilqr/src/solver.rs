@@ -668,9 +668,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                             // A convergence the last model's last step
                             // claimed is not carried over: the next model
                             // must find it for itself.
-                            (mu, delta, stale, converged, moved) =
-                                (options.mu_init, 1.0, true, false, false);
-                            convex_step_tried = false;
+                            (mu, delta, stale, converged, moved, convex_step_tried) =
+                                (options.mu_init, 1.0, true, false, false, false);
                             continue 'outer;
                         }
                         // Raising μ can take a dozen passes (μ from 1 past
@@ -748,7 +747,6 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             if minimum {
                 match (model, moved) {
                     (Model::Exact | Model::Checking, _) => break Status::Converged,
-                    (Model::Convex, false) if convex_step_tried => break Status::NoProgress,
                     // The convex model's first step is tried before its
                     // prediction is trusted: at an obstacle's centre the
                     // gradient is taken as 0 (the cone's tip has none), so
@@ -766,9 +764,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     // exact Hessian checks it, from μ_init.
                     (Model::Convex, true) => {
                         model = Model::Checking;
-                        (mu, delta, stale, converged, moved) =
-                            (options.mu_init, 1.0, true, false, false);
-                        convex_step_tried = false;
+                        (mu, delta, stale, converged, moved, convex_step_tried) =
+                            (options.mu_init, 1.0, true, false, false, false);
                         continue 'outer;
                     }
                 }
@@ -881,7 +878,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // prediction) found nothing either: the model stands, and
             // raising μ to its maximum would only shrink the same step (14
             // more passes, each with a full line search).
-            if !accepted && convex_step_tried && model == Model::Convex && !moved {
+            // (The flag is only ever set under the convex model, and cleared
+            // when the model changes.)
+            if !accepted && convex_step_tried && !moved {
                 break Status::NoProgress;
             }
             if mu > options.mu_max {
@@ -893,8 +892,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 ) {
                     break status;
                 }
-                (mu, delta, stale, converged, moved) = (options.mu_init, 1.0, true, false, false);
-                convex_step_tried = false;
+                (mu, delta, stale, converged, moved, convex_step_tried) =
+                    (options.mu_init, 1.0, true, false, false, false);
             }
         };
 
