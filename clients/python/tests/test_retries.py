@@ -9,7 +9,7 @@ from __future__ import annotations
 import logging
 import time
 from pathlib import Path
-from typing import Iterator, List
+from typing import Callable, Iterator, List
 
 import pytest
 import requests
@@ -80,7 +80,7 @@ def test_retry_honours_retry_after(single_worker: ServiceProcess, caplog: pytest
 
 
 def test_shutting_down_is_retried_with_backoff(
-    tmp_path: Path, caplog: pytest.LogCaptureFixture
+    tmp_path: Path, caplog: pytest.LogCaptureFixture, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     # One instance, draining: every retry reaches it again (behind a load
     # balancer the new connection would reach another replica), so the
@@ -95,7 +95,7 @@ def test_shutting_down_is_retried_with_backoff(
             assert client.ready() is False
 
             sleeps: List[float] = []
-            client._sleep = sleeps.append  # type: ignore[method-assign]
+            monkeypatch.setattr(client, "_sleep", sleeps.append)
             with caplog.at_level(logging.WARNING, logger="ilqr_client"):
                 with pytest.raises(ShuttingDownError) as info:
                     client.solve(SMALL)
@@ -191,3 +191,75 @@ def test_netrc_credentials_go_to_the_service_only(
         client.session.auth = ("mine", "pw")
         client.solve(SMALL)
         assert sent[-1] != sent[0] and sent[-1].startswith("Basic "), sent
+
+
+def recorded(sleeps: List[float]) -> Callable[[float], None]:
+    """A sleep that also notes how long it slept."""
+
+    def sleep(seconds: float) -> None:
+        sleeps.append(seconds)
+        time.sleep(seconds)
+
+    return sleep
+
+
+def test_a_deadline_stops_retrying_where_the_wait_would_pass_it(
+    single_worker: ServiceProcess, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    job = BackgroundSolve(single_worker.url, busy_problem(2500)).start()
+
+    with Client(single_worker.url, retries=5) as client:
+        sleeps: List[float] = []
+        monkeypatch.setattr(client, "_sleep", sleeps.append)
+        started = time.monotonic()
+        # Retry-After is 1 s: waiting it out would end past a 0.5 s deadline.
+        with pytest.raises(OverloadedError):
+            client.solve(SMALL, deadline=0.5)
+        assert time.monotonic() - started < 0.5
+        assert sleeps == []
+
+        # With room for one wait but not two, exactly one retry is made.
+        monkeypatch.setattr(client, "_sleep", recorded(sleeps))
+        started = time.monotonic()
+        with pytest.raises(OverloadedError):
+            client.solve(SMALL, deadline=1.8)
+        assert len(sleeps) == 1 and 1.0 <= sleeps[0] <= 1.1
+        assert time.monotonic() - started < 1.8
+
+    assert len(job.result().states) == 10001
+
+
+def test_a_deadline_cuts_the_read_timeout_and_the_connection_backoff(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    import socket
+
+    # Connected, never answered: the read timeout (30 s) is cut to the
+    # deadline.
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        with Client(f"http://127.0.0.1:{silent.getsockname()[1]}", timeout=30) as client:
+            started = time.monotonic()
+            with pytest.raises(requests.Timeout):
+                client.solve({}, deadline=0.3)
+            assert 0.25 <= time.monotonic() - started < 2
+
+    # Nothing listens: backoffs of 0.2 and 0.4 s, and the second would end
+    # past the deadline.
+    url = f"http://127.0.0.1:{free_port()}"
+    with Client(url, retries=5, backoff=0.2) as client:
+        sleeps: List[float] = []
+        monkeypatch.setattr(client, "_sleep", recorded(sleeps))
+        started = time.monotonic()
+        with pytest.raises(requests.ConnectionError):
+            client.solve({}, deadline=0.5)
+        assert len(sleeps) == 1 and 0.2 <= sleeps[0] <= 0.22
+        assert time.monotonic() - started < 0.5
+
+
+@pytest.mark.parametrize("deadline", [0, -1, float("nan"), float("inf"), True, "1"])
+def test_a_deadline_must_be_a_positive_number_of_seconds(deadline: object) -> None:
+    with Client("http://127.0.0.1:1") as client:
+        with pytest.raises(ValueError, match="deadline must be a positive number of seconds"):
+            client.solve({}, deadline=deadline)  # type: ignore[arg-type]

@@ -109,6 +109,44 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
     return timeout
 
 
+def _deadline_at(deadline: Optional[float]) -> Optional[float]:
+    """The :func:`time.monotonic` instant ``deadline`` seconds from now."""
+    if deadline is None:
+        return None
+    if (
+        isinstance(deadline, bool)
+        or not isinstance(deadline, (int, float))
+        or not 0 < deadline < float("inf")
+    ):
+        raise ValueError(f"deadline must be a positive number of seconds, got {deadline!r}")
+    return time.monotonic() + deadline
+
+
+def _cut(timeout: Optional[TimeoutSpec], left: float) -> TimeoutSpec:
+    """``timeout`` with its connect and read parts at most ``left`` seconds.
+
+    The floor of 1 ms keeps a deadline that has just passed a timeout (0
+    would make the socket non-blocking, and requests refuses negatives).
+    """
+    left = max(left, 0.001)
+    if isinstance(timeout, tuple):
+        connect, read = timeout
+        return (
+            left if connect is None else min(connect, left),
+            left if read is None else min(read, left),
+        )
+    if isinstance(timeout, (int, float)):
+        return min(timeout, left)
+    # None (wait forever) or a form requests takes as is (urllib3.Timeout):
+    # the deadline is the only bound that can be stated in seconds.
+    return left
+
+
+def _past(deadline_at: Optional[float], wait: float) -> bool:
+    """Whether sleeping ``wait`` seconds would end past ``deadline_at``."""
+    return deadline_at is not None and time.monotonic() + wait >= deadline_at
+
+
 _JSON = "application/json"
 
 #: How answers are decoded: orjson where installed (``pip install
@@ -281,6 +319,7 @@ class Client:
         *,
         timeout: Optional[TimeoutSpec] = None,
         request_id: Optional[str] = None,
+        deadline: Optional[float] = None,
     ) -> SolveResult:
         """Solve a trajectory-optimisation problem (``POST /solve``).
 
@@ -296,6 +335,17 @@ class Client:
                 echoes it (also on errors), which helps correlate logs. 1 to
                 128 visible ASCII characters (no spaces): the service would
                 replace anything else with an id of its own.
+            deadline: Seconds this call may take in all, retries and the
+                waits between them included. Each attempt's connect and read
+                timeouts are cut to the time left, and a retry whose wait
+                would end past the deadline is not made: the error that
+                called for it is raised at once. The service does not know
+                the deadline: give the problem a ``solver.time_limit_ms``
+                below it, so that the service answers with its best
+                trajectory before the client stops waiting (an abandoned
+                answer cancels the solve). The read timeout bounds each wait
+                for data, so a connection that trickles bytes could outlast
+                it; the service sends its answer in one piece.
 
         Returns:
             The parsed answer. How the solve ended is ``result.status``; every
@@ -308,11 +358,15 @@ class Client:
             ApiError: any other error answer (see :mod:`ilqr_client.errors`).
             requests.RequestException: transport failures (after retries for
                 connection errors).
+            requests.Timeout: no answer within ``timeout``, or within
+                what was left of ``deadline``.
             TypeError, ValueError: the problem cannot be encoded as JSON
                 (a NaN or infinity: the message starts with its JSON
-                pointer), or ``request_id`` is not one the service would
-                keep.
+                pointer), ``request_id`` is not one the service would
+                keep, or ``deadline`` is not a positive number of seconds.
         """
+        # Taken first, so that encoding a long horizon counts against it.
+        deadline_at = _deadline_at(deadline)
         if request_id is not None and not (
             0 < len(request_id) <= 128 and all("!" <= c <= "~" for c in request_id)
         ):
@@ -339,7 +393,8 @@ class Client:
         if timeout is None:
             timeout = _covering(self.timeout, document)
         response, attempts = self._request(
-            "POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout
+            "POST", "/solve", data=body.encode("utf-8"), headers=headers, timeout=timeout,
+            deadline_at=deadline_at,
         )
         data = self._json(response)
         try:
@@ -423,8 +478,13 @@ class Client:
         data: Optional[bytes] = None,
         headers: Optional[Dict[str, str]] = None,
         timeout: Optional[TimeoutSpec] = None,
+        deadline_at: Optional[float] = None,
     ) -> Tuple[requests.Response, int]:
         """Send a request, retrying overloads and connection failures (see the module docs).
+
+        ``deadline_at`` (a :func:`time.monotonic` instant) cuts each
+        attempt's timeouts to the time left and stops retrying where the
+        next wait would end past it.
 
         Returns:
             A response with a status below 400, and how many attempts it took.
@@ -441,9 +501,12 @@ class Client:
         effective_timeout = self.timeout if timeout is None else timeout
         attempt = 0
         while True:
+            attempt_timeout = effective_timeout
+            if deadline_at is not None:
+                attempt_timeout = _cut(effective_timeout, deadline_at - time.monotonic())
             try:
                 response = self.session.request(
-                    method, url, data=data, headers=all_headers, timeout=effective_timeout,
+                    method, url, data=data, headers=all_headers, timeout=attempt_timeout,
                     **self._settings(),
                 )
             except requests.exceptions.SSLError:
@@ -452,6 +515,8 @@ class Client:
                 if attempt >= self.retries:
                     raise
                 wait = self._backoff(attempt)
+                if _past(deadline_at, wait):
+                    raise
                 logger.warning(
                     "%s %s: connection failed (%s); retry %d/%d in %.2f s",
                     method, path, exc, attempt + 1, self.retries, wait,
@@ -473,6 +538,8 @@ class Client:
                 else:
                     wait = self._backoff(attempt)
                     reason = "service overloaded (no Retry-After)"
+                if _past(deadline_at, wait):
+                    raise error
                 logger.warning(
                     "%s %s: %s; retry %d/%d in %.2f s [request id %s]",
                     method, path, reason, attempt + 1, self.retries, wait, error.request_id,
