@@ -67,6 +67,7 @@ pub const MAX_DT: f64 = 10.0;
 pub struct ProblemSpec {
     /// The dynamics model and its physical parameters.
     #[serde(deserialize_with = "de_object")]
+    #[schema(schema_with = schema::model)]
     pub model: ModelSpec,
     /// How the continuous dynamics are discretised.
     #[serde(deserialize_with = "de_name")]
@@ -91,6 +92,7 @@ pub struct ProblemSpec {
     pub goal_state: [f64; 6],
     /// Diagonal cost weights.
     #[serde(deserialize_with = "de_object")]
+    #[schema(schema_with = schema::weights)]
     pub weights: Weights,
     /// Soft obstacles. Default: one at (4.5, 4.5) with weight 1000.
     #[serde(deserialize_with = "de_objects")]
@@ -103,9 +105,11 @@ pub struct ProblemSpec {
     pub initial_controls: Option<Vec<[f64; 2]>>,
     /// Termination settings.
     #[serde(deserialize_with = "de_object")]
+    #[schema(schema_with = schema::solver)]
     pub solver: SolverSpec,
     /// Which optional parts of the result to return.
     #[serde(deserialize_with = "de_object")]
+    #[schema(schema_with = schema::output)]
     pub output: OutputSpec,
 }
 
@@ -761,18 +765,52 @@ impl<'de> Visitor<'de> for OptCount {
     }
 }
 
-/// A nested struct must be a JSON object. serde's derive also takes an
-/// array, filling the fields in order: `{"solver": [5]}` would silently set
+/// A nested struct (`model`, `weights`, `solver`, `output`) must be a JSON
+/// object, or null for its defaults. serde's derive also takes an array,
+/// filling the fields in order: `{"solver": [5]}` would silently set
 /// `max_iterations`. This reads the struct through [`ObjectOnly`], which
-/// asks for a map, so an array (or null) is an error that says an object
-/// was expected, and the error path still reaches into the fields.
+/// asks for a map, so an array is an error that says an object was
+/// expected, and the error path still reaches into the fields.
+///
+/// Null is the same as leaving the member out because clients generated
+/// from the OpenAPI document send it: datamodel-code-generator's pydantic
+/// models type these members `X | None = None`, and a plain
+/// `model_dump_json()` writes `"model": null`.
 fn de_object<'de, D, T>(d: D) -> Result<T, D::Error>
 where
     D: Deserializer<'de>,
-    T: Deserialize<'de>,
+    T: Deserialize<'de> + Default,
 {
-    T::deserialize(ObjectOnly(d))
+    struct ObjectOrNull<T>(std::marker::PhantomData<T>);
+
+    impl<'de, T: Deserialize<'de> + Default> Visitor<'de> for ObjectOrNull<T> {
+        type Value = T;
+
+        fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
+            f.write_str(OBJECT_OR_NULL)
+        }
+
+        fn visit_none<E: serde::de::Error>(self) -> Result<T, E> {
+            Ok(T::default())
+        }
+
+        fn visit_unit<E: serde::de::Error>(self) -> Result<T, E> {
+            Ok(T::default())
+        }
+
+        fn visit_some<D: Deserializer<'de>>(self, d: D) -> Result<T, D::Error> {
+            T::deserialize(ObjectOnly {
+                inner: d,
+                expected: OBJECT_OR_NULL,
+            })
+        }
+    }
+
+    d.deserialize_option(ObjectOrNull(std::marker::PhantomData))
 }
+
+/// What [`de_object`]'s members take, for error messages.
+const OBJECT_OR_NULL: &str = "a JSON object, or null for the defaults";
 
 /// An array of nested structs, each a JSON object (see [`de_object`]).
 fn de_objects<'de, D, T>(d: D) -> Result<Vec<T>, D::Error>
@@ -806,21 +844,32 @@ where
         type Value = T;
 
         fn deserialize<D: Deserializer<'de>>(self, d: D) -> Result<T, D::Error> {
-            de_object(d)
+            // Not de_object: an obstacle has no default, so null is an error.
+            T::deserialize(ObjectOnly {
+                inner: d,
+                expected: "a JSON object",
+            })
         }
     }
 
     d.deserialize_seq(Objects(std::marker::PhantomData))
 }
 
-/// A deserializer that gives struct visitors only maps.
-struct ObjectOnly<D>(D);
+/// A deserializer that gives struct visitors only maps; anything else is
+/// an error that says it `expected` this.
+struct ObjectOnly<D> {
+    inner: D,
+    expected: &'static str,
+}
 
 impl<'de, D: Deserializer<'de>> Deserializer<'de> for ObjectOnly<D> {
     type Error = D::Error;
 
     fn deserialize_any<V: Visitor<'de>>(self, visitor: V) -> Result<V::Value, D::Error> {
-        self.0.deserialize_map(ObjectVisitor(visitor))
+        self.inner.deserialize_map(ObjectVisitor {
+            inner: visitor,
+            expected: self.expected,
+        })
     }
 
     serde::forward_to_deserialize_any! {
@@ -831,18 +880,22 @@ impl<'de, D: Deserializer<'de>> Deserializer<'de> for ObjectOnly<D> {
 }
 
 /// Passes a map on to the struct's own visitor; anything else is an error
-/// that says "expected a JSON object" rather than a Rust type name.
-struct ObjectVisitor<V>(V);
+/// that says what was expected ("a JSON object") rather than a Rust type
+/// name.
+struct ObjectVisitor<V> {
+    inner: V,
+    expected: &'static str,
+}
 
 impl<'de, V: Visitor<'de>> Visitor<'de> for ObjectVisitor<V> {
     type Value = V::Value;
 
     fn expecting(&self, f: &mut fmt::Formatter) -> fmt::Result {
-        f.write_str("a JSON object")
+        f.write_str(self.expected)
     }
 
     fn visit_map<A: serde::de::MapAccess<'de>>(self, map: A) -> Result<V::Value, A::Error> {
-        self.0.visit_map(map)
+        self.inner.visit_map(map)
     }
 }
 
@@ -985,7 +1038,10 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     for _ in 0..reads {
         // Through `ObjectOnly` like every nested struct: serde alone would
         // take an array for the document too.
-        let error = match serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly(&value)) {
+        let error = match serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly {
+            inner: &value,
+            expected: "a JSON object",
+        }) {
             Ok(spec) if shapes.found.errors.is_empty() => return Ok(spec),
             Ok(spec) => {
                 return Err(ParseError::Shape(Box::new(Shapes {
@@ -1247,10 +1303,11 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         // at the first of them.
         let token = String::from_utf8_lossy(&bytes[spans[0].clone()]);
         let what = "which is not JSON (Python's json.dumps writes it for a non-finite float)";
-        // What the place takes: what a null there is told, the nulled
+        // What the place takes: what a number there is told, the masked
         // document being JSON (and free of these tokens, so this parses
-        // once more at most).
-        let told = match parse(&replace_spans(bytes, &spans, b"null")) {
+        // once more at most). A number, not null: null is taken where an
+        // object is (`model`), and where a number is (`time_limit_ms`).
+        let told = match parse(masked.as_deref().unwrap_or(bytes)) {
             Err(ParseError::Shape(s)) => s
                 .checker
                 .found
@@ -1262,14 +1319,11 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         };
         let detail = match (count_expected(path, None), told) {
             (Some(expected), _) => format!("got {token}, {what}: expected {expected}"),
-            (None, Some(told)) => match told.strip_prefix("invalid type: null, ") {
-                Some("expected a number") => {
-                    format!("got {token}, {what}: expected a finite number")
-                }
+            (None, Some(told)) => match told.strip_prefix("invalid type: number 0, ") {
                 Some(expected) => format!("got {token}, {what}: {expected}"),
                 None => format!("got {token}, {what}; and {told}"),
             },
-            // A null is taken there (an optional member): a number is too.
+            // A number is taken there.
             (None, None) => format!("got {token}, {what}: expected a finite number"),
         };
         return ParseError::Shape(Shapes::one(FieldError {

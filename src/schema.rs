@@ -6,7 +6,9 @@
 //! the spec says exactly what validation accepts. (A `schema_with` replaces
 //! the field's doc comment, so each builder carries its own description.)
 
-use utoipa::openapi::schema::{ArrayBuilder, ArrayItems, ObjectBuilder, Schema, SchemaType, Type};
+use utoipa::openapi::schema::{
+    AnyOfBuilder, ArrayBuilder, ArrayItems, ObjectBuilder, Ref, Schema, SchemaType, Type,
+};
 use utoipa::openapi::{KnownFormat, SchemaFormat};
 
 use crate::problem::{MAX_CONTROL, MAX_STATE, MAX_WEIGHT, ProblemSpec, Weights};
@@ -105,6 +107,50 @@ pub fn obstacle_center() -> Schema {
         .description(Some("Centre [x, y] in m, each of magnitude at most 1e6."))
         .build()
         .into()
+}
+
+/// A nested object of the problem that null leaves at its defaults, as
+/// leaving it out does (see `de_object` in `problem.rs`). `anyOf` of the
+/// reference and null, the form FastAPI writes for an optional model and so
+/// the one code generators read best; written here because utoipa's
+/// `nullable` gives a `oneOf` with the description inside the reference,
+/// and an object default beside it (which openapi-generator's Go output
+/// does not compile).
+fn object_or_null(component: &str, description: &str) -> Schema {
+    AnyOfBuilder::new()
+        .item(Ref::from_schema_name(component))
+        .item(ObjectBuilder::new().schema_type(Type::Null))
+        .description(Some(format!(
+            "{description} Null: the defaults, as when left out."
+        )))
+        .build()
+        .into()
+}
+
+/// `model`.
+pub fn model() -> Schema {
+    object_or_null(
+        "ModelSpec",
+        "The dynamics model and its physical parameters.",
+    )
+}
+
+/// `weights`.
+pub fn weights() -> Schema {
+    object_or_null("Weights", "Diagonal cost weights.")
+}
+
+/// `solver`.
+pub fn solver() -> Schema {
+    object_or_null("SolverSpec", "Termination settings.")
+}
+
+/// `output`.
+pub fn output() -> Schema {
+    object_or_null(
+        "OutputSpec",
+        "Which optional parts of the result to return.",
+    )
 }
 
 /// `initial_controls`: rows of `[u1, u2]`, or null for the default.

@@ -179,6 +179,15 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
         ),
         (br#"{"foo": NaN}"#, "/foo", "got NaN,"),
         (br#"{"obstacles": [NaN]}"#, "/obstacles/0", "got NaN,"),
+        // Null is taken at both, so what a null is told says nothing of
+        // what goes there: what a number is told does (an array; an
+        // object). Told as "a finite number" before.
+        (
+            br#"{"initial_controls": NaN}"#,
+            "/initial_controls",
+            "got NaN,",
+        ),
+        (br#"{"solver": Infinity}"#, "/solver", "got Infinity,"),
     ] {
         let text = String::from_utf8_lossy(doc);
         match parse(doc) {
@@ -193,7 +202,9 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
                 );
                 let expected = match pointer {
                     "/horizon" => ": expected an integer from 1 to the maximum horizon",
-                    "/model" | "/obstacles/0" => ": expected a JSON object",
+                    "/model" | "/solver" => ": expected a JSON object, or null for the defaults",
+                    "/obstacles/0" => ": expected a JSON object",
+                    "/initial_controls" => ": expected an array",
                     "/output/gains" => ": expected a boolean",
                     "/foo" => "; and unknown field `foo`, expected one of `model`",
                     _ => ": expected a finite number",
@@ -616,24 +627,33 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         "one error for one value: {detail}"
     );
     // Nested structs are objects only: serde alone filled them from arrays
-    // in field order, so `{"solver": [5]}` set max_iterations to 5.
-    for (doc, pointer) in [
-        (json!({"model": []}), "/model"),
-        (json!({"weights": [[1, 1, 1, 1, 1, 1]]}), "/weights"),
-        (json!({"solver": [5]}), "/solver"),
-        (json!({"solver": null}), "/solver"),
-        (json!({"output": [false, false]}), "/output"),
+    // in field order, so `{"solver": [5]}` set max_iterations to 5. The
+    // four members with defaults also take null (an obstacle has none).
+    const OR_NULL: &str = "expected a JSON object, or null for the defaults";
+    for (doc, pointer, expected) in [
+        (json!({"model": []}), "/model", OR_NULL),
+        (
+            json!({"weights": [[1, 1, 1, 1, 1, 1]]}),
+            "/weights",
+            OR_NULL,
+        ),
+        (json!({"solver": [5]}), "/solver", OR_NULL),
+        (json!({"solver": false}), "/solver", OR_NULL),
+        (json!({"output": [false, false]}), "/output", OR_NULL),
         (
             json!({"obstacles": [{"center": [1, 1], "weight": 1}, [[1, 1], 5]]}),
             "/obstacles/1",
+            "expected a JSON object",
+        ),
+        (
+            json!({"obstacles": [null]}),
+            "/obstacles/0",
+            "expected a JSON object",
         ),
     ] {
         let (at, detail) = shape_error(doc.clone());
         assert_eq!(at, pointer, "{doc}");
-        assert!(
-            detail.ends_with("expected a JSON object"),
-            "{doc}: {detail}"
-        );
+        assert!(detail.ends_with(expected), "{doc}: {detail}");
     }
     assert_eq!(
         shape_error(json!({"obstacles": {}})).1,
@@ -708,7 +728,7 @@ fn shape_errors_name_json_kinds() {
         ),
         (
             br#"{"weights": []}"#,
-            "invalid type: array, expected a JSON object",
+            "invalid type: array, expected a JSON object, or null for the defaults",
         ),
         (br#"{"dt": [1]}"#, "invalid type: array, expected a number"),
         (
@@ -832,6 +852,31 @@ fn magnitudes_beyond_the_documented_ranges_are_rejected() {
         parse(br#"{"initial_controls": null}"#).unwrap(),
         ProblemSpec::default()
     );
+}
+
+/// `model`, `weights`, `solver` and `output` may be null, which leaves them
+/// at their defaults as leaving them out does: clients generated from the
+/// OpenAPI document (pydantic models from datamodel-code-generator) send
+/// null for the nested objects a caller did not set.
+#[test]
+fn null_nested_objects_are_their_defaults() {
+    let doc = br#"{"model": null, "weights": null, "solver": null, "output": null}"#;
+    assert_eq!(parse(doc).unwrap(), ProblemSpec::default());
+    // One at a time, beside members that are set: only the null one is
+    // defaulted.
+    let spec = parse(br#"{"horizon": 20, "solver": null, "model": {"mass": 2}}"#).unwrap();
+    assert_eq!(spec.horizon, 20);
+    assert_eq!(spec.model.mass, 2.0);
+    assert_eq!(spec.solver, ProblemSpec::default().solver);
+    // Null inside them is still wrong where a value has no "none" (a mass),
+    // and reported beside the other errors.
+    assert_eq!(
+        errors(&json!({"model": {"mass": null}, "weights": null, "dt": -1})),
+        ["/model/mass", "/dt"]
+    );
+    // The document itself and an obstacle are not defaulted by null.
+    assert_eq!(shape_error(json!(null)).0, "");
+    assert_eq!(shape_error(json!({"obstacles": [null]})).0, "/obstacles/0");
 }
 
 /// The ranges exist so that no valid problem overflows: the most extreme one

@@ -22,7 +22,9 @@ use super::body::{BodyRules, read_with};
 use super::error::{ApiError, LoggedProblem, Overload, Problem};
 use super::pool::Ticket;
 use super::{AppState, metrics};
-use crate::problem::{ParseError, ProblemSpec, clip, parse};
+use crate::problem::{
+    ModelSpec, OutputSpec, ParseError, ProblemSpec, SolverSpec, Weights, clip, parse,
+};
 use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
 
 /// The OpenAPI document's fixed parts; paths come from the router.
@@ -42,6 +44,9 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
                        65535 bytes or more is 414; more than 100 header fields, or a request \
                        head over about 400 KiB, is 431."
     ),
+    // Referenced only through `schema::object_or_null`, which utoipa does
+    // not follow to collect them as it does a field's own type.
+    components(schemas(ModelSpec, Weights, SolverSpec, OutputSpec)),
     tags(
         (name = "solve", description = "Trajectory solves"),
         (name = "operations", description = "Health, readiness, metrics and this documentation")
