@@ -1307,24 +1307,48 @@ fn unreadable(bytes: &[u8], skipped: usize, path: &str, e: serde_json::Error) ->
         // document being JSON (and free of these tokens, so this parses
         // once more at most). A number, not null: null is taken where an
         // object is (`model`), and where a number is (`time_limit_ms`).
+        enum Told {
+            /// A number is taken there.
+            Number,
+            /// What a number there is told.
+            Here(String),
+            /// The member holding it is wrong itself (`{"model": [NaN]}`).
+            Above(FieldError),
+            /// Not known: reading stopped before the whole document was
+            /// checked (another value it cannot read, or the re-read budget).
+            Unknown,
+        }
         let told = match parse(masked.as_deref().unwrap_or(bytes)) {
-            Err(ParseError::Shape(s)) => s
-                .checker
-                .found
-                .errors
-                .into_iter()
-                .find(|f| f.pointer == path)
-                .map(|f| f.detail),
-            _ => None,
+            Ok(_) => Told::Number,
+            Err(ParseError::Shape(s)) => {
+                let complete = s.rest.is_some();
+                let errors = s.checker.found.errors;
+                if let Some(f) = errors.iter().find(|f| f.pointer == path) {
+                    Told::Here(f.detail.clone())
+                } else if let Some(f) = errors
+                    .into_iter()
+                    .find(|f| is_at_or_under(path, &f.pointer))
+                {
+                    Told::Above(f)
+                } else if complete {
+                    Told::Number
+                } else {
+                    Told::Unknown
+                }
+            }
+            Err(ParseError::Syntax(_)) => Told::Unknown,
         };
         let detail = match (count_expected(path, None), told) {
             (Some(expected), _) => format!("got {token}, {what}: expected {expected}"),
-            (None, Some(told)) => match told.strip_prefix("invalid type: number 0, ") {
+            (None, Told::Here(told)) => match told.strip_prefix("invalid type: number 0, ") {
                 Some(expected) => format!("got {token}, {what}: {expected}"),
                 None => format!("got {token}, {what}; and {told}"),
             },
-            // A number is taken there.
-            (None, None) => format!("got {token}, {what}: expected a finite number"),
+            (None, Told::Above(f)) => {
+                format!("got {token}, {what}; and {}: {}", f.pointer, f.detail)
+            }
+            (None, Told::Number) => format!("got {token}, {what}: expected a finite number"),
+            (None, Told::Unknown) => format!("got {token}, {what}"),
         };
         return ParseError::Shape(Shapes::one(FieldError {
             pointer: path.to_owned(),

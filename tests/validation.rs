@@ -240,6 +240,68 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
     }
 }
 
+/// Where the member holding a bare NaN is wrong itself, that is what the
+/// NaN is told; where the rest of the document could not be checked, the
+/// NaN is told nothing of what its place takes. Both used to be told
+/// "expected a finite number" (a review's cases).
+#[test]
+fn a_bare_nan_is_told_what_is_known_of_its_place() {
+    let told = |doc: &[u8]| match parse(doc) {
+        Err(ParseError::Shape(s)) => {
+            let f = s.first().clone();
+            (f.pointer, f.detail)
+        }
+        other => panic!("{}: {other:?}", String::from_utf8_lossy(doc)),
+    };
+    for (doc, pointer, above) in [
+        (
+            &br#"{"model": [NaN]}"#[..],
+            "/model/0",
+            "; and /model: invalid type: array, expected a JSON object, or null for the defaults",
+        ),
+        (
+            br#"{"dt": {"a": NaN}}"#,
+            "/dt/a",
+            "; and /dt: invalid type: object, expected a number",
+        ),
+        (
+            br#"{"initial_controls": [[1, 1, NaN]]}"#,
+            "/initial_controls/0/2",
+            "; and /initial_controls/0: ",
+        ),
+        (
+            br#"{"foo": [NaN]}"#,
+            "/foo/0",
+            "; and /foo: unknown field `foo`",
+        ),
+    ] {
+        let (at, detail) = told(doc);
+        assert_eq!(at, pointer, "{detail}");
+        assert!(detail.starts_with("got NaN, which is not JSON"), "{detail}");
+        assert!(detail.contains(above), "{detail}");
+        assert!(!detail.contains("finite number"), "{detail}");
+    }
+    // Reading the masked document stopped early: at a number it cannot
+    // read, or when the re-read budget (1 MiB) ran out at `/dt` in a
+    // 2 MB body.
+    let rows = vec!["[1,1]"; 200_000].join(",");
+    let long = format!(r#"{{"dt": "x", "initial_controls": [{rows}], "model": NaN}}"#);
+    for doc in [&br#"{"model": NaN, "dt": 1e999}"#[..], long.as_bytes()] {
+        let (at, detail) = told(doc);
+        assert_eq!(at, "/model");
+        assert_eq!(
+            detail,
+            "got NaN, which is not JSON (Python's json.dumps writes it for a non-finite float)"
+        );
+    }
+    // Where the whole document was checked and a number is taken, it says so.
+    assert!(
+        told(br#"{"dt": NaN, "foo": 1}"#)
+            .1
+            .ends_with(": expected a finite number")
+    );
+}
+
 #[test]
 fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     let deep = |open: usize, close: usize| {
