@@ -258,7 +258,60 @@ def test_a_deadline_cuts_the_read_timeout_and_the_connection_backoff(
         assert time.monotonic() - started < 0.5
 
 
-@pytest.mark.parametrize("deadline", [0, -1, float("nan"), float("inf"), True, "1"])
+def test_a_deadline_bounds_a_slow_connect_and_the_read_together() -> None:
+    import socket
+    import threading
+
+    # The accept queue is full, so the client's SYN is dropped and sent
+    # again about 1 s later; the server frees the queue at 0.5 s, so the
+    # connection opens at about 1 s, and the server then never answers.
+    # With the connect and read timeouts each cut to 1.5 s alone, the call
+    # took 2.5 s.
+    with socket.socket() as server:
+        server.bind(("127.0.0.1", 0))
+        server.listen(0)
+        port = server.getsockname()[1]
+        filler = socket.create_connection(("127.0.0.1", port))
+        accepted: List[socket.socket] = []
+
+        def free_the_queue() -> None:
+            time.sleep(0.5)
+            accepted.append(server.accept()[0])
+
+        threading.Thread(target=free_the_queue, daemon=True).start()
+        try:
+            with Client(f"http://127.0.0.1:{port}", timeout=30, retries=0) as client:
+                started = time.monotonic()
+                with pytest.raises(requests.Timeout):
+                    client.solve({}, deadline=1.5)
+                assert time.monotonic() - started < 1.75
+        finally:
+            filler.close()
+            for sock in accepted:
+                sock.close()
+
+
+def test_a_deadline_that_passed_while_encoding_sends_nothing(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    # Nothing listens: a request sent would be a ConnectionError.
+    with Client(f"http://127.0.0.1:{free_port()}", retries=0) as client:
+        sent: List[str] = []
+        original = client.session.request
+
+        def request(method: str, url: str, **kwargs: object) -> requests.Response:
+            sent.append(url)
+            return original(method, url, **kwargs)  # type: ignore[arg-type]
+
+        monkeypatch.setattr(client.session, "request", request)
+        # About 25 ms of encoding against a 1 ms deadline.
+        problem = {"horizon": 10000, "initial_controls": [[4.905, 4.905]] * 10000}
+        with pytest.raises(requests.Timeout, match="deadline passed before the request was sent"):
+            client.solve(problem, deadline=0.001)
+        assert sent == []
+
+
+@pytest.mark.parametrize("deadline", [0, -1, float("nan"), float("inf"), 1e10, True, "1"])
 def test_a_deadline_must_be_a_positive_number_of_seconds(deadline: object) -> None:
     with Client("http://127.0.0.1:1") as client:
         with pytest.raises(ValueError, match="deadline must be a positive number of seconds"):

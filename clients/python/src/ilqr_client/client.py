@@ -42,6 +42,7 @@ from types import TracebackType
 from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Type, Union, cast
 
 import requests
+import urllib3
 
 from ._version import __version__
 from .errors import OverloadedError, ShuttingDownError, UnexpectedResponseError, error_from_response
@@ -109,6 +110,18 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
     return timeout
 
 
+#: Largest ``deadline`` accepted, in seconds (about 31 years): a socket
+#: timeout much larger overflows CPython's time arithmetic (between 9e9 and
+#: 1e10 s), and a deadline replaces a timeout of ``None``.
+_MAX_DEADLINE_S = 1e9
+
+#: Least time a retry must have left after its wait to be made, in seconds:
+#: an attempt with less would end in a timeout rather than an answer, and
+#: the caller would get that ``requests.Timeout`` instead of the error that
+#: called for the retry.
+_MIN_RETRY_S = 0.01
+
+
 def _deadline_at(deadline: Optional[float]) -> Optional[float]:
     """The :func:`time.monotonic` instant ``deadline`` seconds from now."""
     if deadline is None:
@@ -116,35 +129,46 @@ def _deadline_at(deadline: Optional[float]) -> Optional[float]:
     if (
         isinstance(deadline, bool)
         or not isinstance(deadline, (int, float))
-        or not 0 < deadline < float("inf")
+        or not 0 < deadline <= _MAX_DEADLINE_S
     ):
-        raise ValueError(f"deadline must be a positive number of seconds, got {deadline!r}")
+        raise ValueError(
+            f"deadline must be a positive number of seconds, at most {_MAX_DEADLINE_S:g}, "
+            f"got {deadline!r}"
+        )
     return time.monotonic() + deadline
 
 
-def _cut(timeout: Optional[TimeoutSpec], left: float) -> TimeoutSpec:
-    """``timeout`` with its connect and read parts at most ``left`` seconds.
+def _cut(timeout: Optional[TimeoutSpec], left: float) -> urllib3.Timeout:
+    """``timeout`` with its connect and read parts at most ``left`` seconds,
+    and ``left`` as the bound on both together.
 
-    The floor of 1 ms keeps a deadline that has just passed a timeout (0
-    would make the socket non-blocking, and requests refuses negatives).
+    requests applies the connect and the read timeout one after the other,
+    so cutting each to ``left`` alone let an attempt take nearly twice
+    that (a connection retransmitted after a full accept queue, then a
+    silent server: 2.5 s for a 1.5 s deadline); urllib3's ``total`` bounds
+    their sum.
     """
-    left = max(left, 0.001)
+    connect: Optional[float]
+    read: Optional[float]
     if isinstance(timeout, tuple):
         connect, read = timeout
-        return (
-            left if connect is None else min(connect, left),
-            left if read is None else min(read, left),
-        )
-    if isinstance(timeout, (int, float)):
-        return min(timeout, left)
-    # None (wait forever) or a form requests takes as is (urllib3.Timeout):
-    # the deadline is the only bound that can be stated in seconds.
-    return left
+    elif isinstance(timeout, (int, float)):
+        connect = read = timeout
+    else:
+        # None (wait forever) or a form requests takes as is (a
+        # urllib3.Timeout): the deadline is the only bound stated in seconds.
+        connect = read = None
+    return urllib3.Timeout(
+        connect=left if connect is None else min(connect, left),
+        read=left if read is None else min(read, left),
+        total=left,
+    )
 
 
 def _past(deadline_at: Optional[float], wait: float) -> bool:
-    """Whether sleeping ``wait`` seconds would end past ``deadline_at``."""
-    return deadline_at is not None and time.monotonic() + wait >= deadline_at
+    """Whether a retry after sleeping ``wait`` seconds would have less than
+    :data:`_MIN_RETRY_S` left before ``deadline_at``."""
+    return deadline_at is not None and time.monotonic() + wait + _MIN_RETRY_S > deadline_at
 
 
 _JSON = "application/json"
@@ -335,11 +359,14 @@ class Client:
                 echoes it (also on errors), which helps correlate logs. 1 to
                 128 visible ASCII characters (no spaces): the service would
                 replace anything else with an id of its own.
-            deadline: Seconds this call may take in all, retries and the
-                waits between them included. Each attempt's connect and read
-                timeouts are cut to the time left, and a retry whose wait
-                would end past the deadline is not made: the error that
-                called for it is raised at once. The service does not know
+            deadline: Seconds this call may take in all (at most 1e9),
+                retries and the waits between them included. Each attempt's
+                connect and read timeouts, and their sum, are cut to the
+                time left; a request whose deadline passed while it was
+                being encoded is not sent (``requests.Timeout``); a retry
+                that would have less than 10 ms left after its wait is not
+                made: the error that called for it is raised at once. The
+                service does not know
                 the deadline: give the problem a ``solver.time_limit_ms``
                 below it, so that the service answers with its best
                 trajectory before the client stops waiting (an abandoned
@@ -363,7 +390,8 @@ class Client:
             TypeError, ValueError: the problem cannot be encoded as JSON
                 (a NaN or infinity: the message starts with its JSON
                 pointer), ``request_id`` is not one the service would
-                keep, or ``deadline`` is not a positive number of seconds.
+                keep, or ``deadline`` is not a positive number of seconds
+                up to 1e9.
         """
         # Taken first, so that encoding a long horizon counts against it.
         deadline_at = _deadline_at(deadline)
@@ -501,9 +529,16 @@ class Client:
         effective_timeout = self.timeout if timeout is None else timeout
         attempt = 0
         while True:
-            attempt_timeout = effective_timeout
+            attempt_timeout: Any = effective_timeout
             if deadline_at is not None:
-                attempt_timeout = _cut(effective_timeout, deadline_at - time.monotonic())
+                left = deadline_at - time.monotonic()
+                if left <= 0:
+                    # Encoding a long horizon took it all: sending now would
+                    # start a solve whose answer nobody waits for.
+                    raise requests.Timeout(
+                        f"{method} {path}: the deadline passed before the request was sent"
+                    )
+                attempt_timeout = _cut(effective_timeout, left)
             try:
                 response = self.session.request(
                     method, url, data=data, headers=all_headers, timeout=attempt_timeout,
