@@ -1,4 +1,5 @@
-//! Hand-written OpenAPI schemas for nested arrays.
+//! Hand-written OpenAPI schemas for nested arrays, and for the nested
+//! objects that also take null.
 //!
 //! utoipa derives `[f64; 6]` as an array of numbers with no length bounds and
 //! cannot put bounds on the inner arrays of `Vec<[f64; 6]>` or on the items
@@ -6,12 +7,15 @@
 //! the spec says exactly what validation accepts. (A `schema_with` replaces
 //! the field's doc comment, so each builder carries its own description.)
 
+use utoipa::ToSchema;
 use utoipa::openapi::schema::{
     AnyOfBuilder, ArrayBuilder, ArrayItems, ObjectBuilder, Ref, Schema, SchemaType, Type,
 };
 use utoipa::openapi::{KnownFormat, SchemaFormat};
 
-use crate::problem::{MAX_CONTROL, MAX_STATE, MAX_WEIGHT, ProblemSpec, Weights};
+use crate::problem::{
+    MAX_CONTROL, MAX_STATE, MAX_WEIGHT, ModelSpec, OutputSpec, ProblemSpec, SolverSpec, Weights,
+};
 
 fn number() -> ObjectBuilder {
     ObjectBuilder::new()
@@ -116,9 +120,9 @@ pub fn obstacle_center() -> Schema {
 /// `nullable` gives a `oneOf` with the description inside the reference,
 /// and an object default beside it (which openapi-generator's Go output
 /// does not compile).
-fn object_or_null(component: &str, description: &str) -> Schema {
+fn object_or_null<T: ToSchema>(description: &str) -> Schema {
     AnyOfBuilder::new()
-        .item(Ref::from_schema_name(component))
+        .item(Ref::from_schema_name(T::name()))
         .item(ObjectBuilder::new().schema_type(Type::Null))
         .description(Some(format!(
             "{description} Null: the defaults, as when left out."
@@ -129,28 +133,22 @@ fn object_or_null(component: &str, description: &str) -> Schema {
 
 /// `model`.
 pub fn model() -> Schema {
-    object_or_null(
-        "ModelSpec",
-        "The dynamics model and its physical parameters.",
-    )
+    object_or_null::<ModelSpec>("The dynamics model and its physical parameters.")
 }
 
 /// `weights`.
 pub fn weights() -> Schema {
-    object_or_null("Weights", "Diagonal cost weights.")
+    object_or_null::<Weights>("Diagonal cost weights.")
 }
 
 /// `solver`.
 pub fn solver() -> Schema {
-    object_or_null("SolverSpec", "Termination settings.")
+    object_or_null::<SolverSpec>("Termination settings.")
 }
 
 /// `output`.
 pub fn output() -> Schema {
-    object_or_null(
-        "OutputSpec",
-        "Which optional parts of the result to return.",
-    )
+    object_or_null::<OutputSpec>("Which optional parts of the result to return.")
 }
 
 /// `initial_controls`: rows of `[u1, u2]`, or null for the default.
