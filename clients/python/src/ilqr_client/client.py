@@ -110,10 +110,10 @@ def _covering(timeout: Optional[TimeoutSpec], document: Mapping[str, Any]) -> Op
     return timeout
 
 
-#: Largest ``deadline`` accepted, in seconds (about 31 years): a socket
-#: timeout much larger overflows CPython's time arithmetic (between 9e9 and
-#: 1e10 s), and a deadline replaces a timeout of ``None``.
-_MAX_DEADLINE_S = 1e9
+#: Largest ``deadline`` accepted, in seconds: the bound of
+#: :data:`_MAX_COVERED_BUDGET_MS`, for the same reason (a deadline replaces
+#: a timeout of ``None``, and one much larger overflows the socket layer).
+_MAX_DEADLINE_S = _MAX_COVERED_BUDGET_MS / 1000
 
 #: Least time a retry must have left after its wait to be made, in seconds:
 #: an attempt with less would end in a timeout rather than an answer, and
@@ -366,8 +366,8 @@ class Client:
                 being encoded is not sent (``requests.Timeout``); a retry
                 that would have less than 10 ms left after its wait is not
                 made: the error that called for it is raised at once. The
-                service does not know
-                the deadline: give the problem a ``solver.time_limit_ms``
+                service does not know the deadline: give the problem a
+                ``solver.time_limit_ms``
                 below it, so that the service answers with its best
                 trajectory before the client stops waiting (an abandoned
                 answer cancels the solve). The read timeout bounds each wait
@@ -511,8 +511,9 @@ class Client:
         """Send a request, retrying overloads and connection failures (see the module docs).
 
         ``deadline_at`` (a :func:`time.monotonic` instant) cuts each
-        attempt's timeouts to the time left and stops retrying where the
-        next wait would end past it.
+        attempt's timeouts and their sum to the time left (see
+        :func:`_cut`), sends nothing once it has passed, and stops retrying
+        where the next wait would leave less than :data:`_MIN_RETRY_S`.
 
         Returns:
             A response with a status below 400, and how many attempts it took.
