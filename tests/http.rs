@@ -1606,23 +1606,30 @@ async fn a_full_answer_budget_refuses_before_solving() {
     let s = answer_budget_server(1 << 20).await;
     let stalled = post_without_reading(s.addr, &large_answer_problem()).await;
     let t = Instant::now();
-    let p = loop {
+    loop {
         let res = s.post(&json!({})).await;
         if res.status() == StatusCode::SERVICE_UNAVAILABLE {
-            break problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+            let p = problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+            let detail = p["detail"].as_str().unwrap();
+            if detail.contains(
+                "hold the whole memory budget for answers (clients reading slowly); nothing was solved",
+            ) {
+                break;
+            }
+            // Admitted while the large solve was still running, on the
+            // other worker, and encoded once its answer held the budget: a
+            // loaded machine (CI on a slow host) saw this race.
+            assert!(
+                detail.contains("the solve ran but its answer was dropped"),
+                "{p}"
+            );
         }
         assert!(
             t.elapsed() < Duration::from_secs(10),
             "the large answer was never held"
         );
         tokio::time::sleep(Duration::from_millis(20)).await;
-    };
-    assert!(
-        p["detail"].as_str().unwrap().contains(
-            "hold the whole memory budget for answers (clients reading slowly); nothing was solved"
-        ),
-        "{p}"
-    );
+    }
     drop(stalled);
 }
 
