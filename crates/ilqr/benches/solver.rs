@@ -12,9 +12,12 @@
 //!   time (what the service does per request).
 //! * `long_horizon::n1000`: the same scenario with N = 1000 at dt = 0.005
 //!   (same 5 s horizon, ten times the knots).
-//! * `backward::riccati_step`: one knot of the backward pass on realistic
-//!   inputs (the seed problem linearised at hover at `x0`, the value function
-//!   of the terminal cost there).
+//! * `backward::riccati_step_one_knot`: one knot of the backward pass on
+//!   realistic inputs (the seed problem linearised at hover at `x0`, the
+//!   value function of the terminal cost there), compiled for the
+//!   quadrotor's stated `Sparsity` as the solver is;
+//!   `riccati_step_one_knot_zeros_tested` the same for a model that states
+//!   none (every entry of `A` and `B` tested for zero at run time).
 //! * `backward::full_pass_n100`: the first backward pass of the seed solve,
 //!   100 `riccati_step`s along the hover rollout, through the public API.
 //!
@@ -25,7 +28,8 @@ use std::sync::atomic::AtomicBool;
 
 use divan::{AllocProfiler, Bencher, black_box};
 use ilqr::{
-    Cost, DiscreteDynamics, Options, Solver, StageExpansion, TerminalExpansion, Value, riccati_step,
+    Cost, DiscreteDynamics, Euler, Options, Quadrotor2D, Solver, Sparsity, StageExpansion,
+    TerminalExpansion, Value, riccati_step,
 };
 use nalgebra::{SMatrix, SVector};
 
@@ -104,6 +108,10 @@ mod backward {
 
     type Knot = (SMatrix<f64, 6, 6>, SMatrix<f64, 6, 2>, StageExpansion<6, 2>);
 
+    /// The seed model's pattern, as the solver passes it.
+    const SPARSITY: Option<&Sparsity<6, 2>> =
+        <Euler<Quadrotor2D> as DiscreteDynamics<6, 2>>::SPARSITY.as_ref();
+
     /// `(A_k, B_k, l_k)` along the rollout of hover thrust from `x0`, and the
     /// terminal value function at its end: the inputs of the first backward
     /// pass of the seed solve.
@@ -134,6 +142,20 @@ mod backward {
     /// function of the terminal cost at `x0`, μ = 0.
     #[divan::bench]
     fn riccati_step_one_knot(bencher: Bencher) {
+        one_knot::<true>(bencher);
+    }
+
+    /// The same knot for a model that states no pattern.
+    #[divan::bench]
+    fn riccati_step_one_knot_zeros_tested(bencher: Bencher) {
+        one_knot::<false>(bencher);
+    }
+
+    /// With the pattern when `STATED`. Named in the call itself, so that it
+    /// is a constant there, as in the solver: held in a variable the closure
+    /// captured, it was read at run time (as many instructions per knot as
+    /// without a pattern, `valgrind --tool=callgrind`).
+    fn one_knot<const STATED: bool>(bencher: Bencher) {
         let problem = seed_problem(100, 0.05);
         let x = problem.x0;
         let u = hover(1)[0];
@@ -146,15 +168,20 @@ mod backward {
             V_x: t.l_x,
             V_xx: t.l_xx,
         };
-        assert!(riccati_step(&A, &B, &l, &value, 0.0).is_some());
+        assert!(riccati_step(&A, &B, &l, &value, 0.0, SPARSITY).is_some());
         bencher.bench_local(|| {
-            riccati_step(
+            let (A, B, l, value, mu) = (
                 black_box(&A),
                 black_box(&B),
                 black_box(&l),
                 black_box(&value),
                 black_box(0.0),
-            )
+            );
+            if STATED {
+                riccati_step(A, B, l, value, mu, SPARSITY)
+            } else {
+                riccati_step(A, B, l, value, mu, None)
+            }
         });
     }
 
@@ -169,7 +196,7 @@ mod backward {
             let mut value = *black_box(&terminal);
             let (mut dv1, mut dv2) = (0.0, 0.0);
             for (k, (A, B, l)) in black_box(&knots).iter().enumerate().rev() {
-                let step = riccati_step(A, B, l, &value, black_box(0.0))
+                let step = riccati_step(A, B, l, &value, black_box(0.0), SPARSITY)
                     .expect("Q_uu is positive definite along the hover rollout");
                 K[k] = step.K;
                 d[k] = step.d;

@@ -8,14 +8,17 @@
 //!
 //! Three choices that matter for speed (measured in BENCHMARKS.md):
 //!
-//! * Products with the dynamics Jacobians skip exact zeros. `A = I + dt·∂f/∂x`
+//! * Products with the dynamics Jacobians skip their zeros. `A = I + dt·∂f/∂x`
 //!   and `B = dt·∂f/∂u` of mechanical models are mostly zeros (for the planar
 //!   quadrotor 11 of 36 entries of `A` and 6 of 12 of `B` are non-zero), so
-//!   `V_xx·A` and `Aᵀ·V_xx·A` shrink to a third. The test is per entry and at
-//!   run time: dense models lose only the compare, and the solver stays
-//!   ignorant of any particular model. Skipping `0·x` changes a result only
-//!   when `x` is infinite or NaN, and the Riccati step rejects non-finite
-//!   gains either way.
+//!   `V_xx·A` and `Aᵀ·V_xx·A` shrink to a third. Where the model states its
+//!   pattern ([`crate::Sparsity`]) the skipped entries are known when the
+//!   solver is compiled for it, and nothing is tested at run time
+//!   ([`Nonzeros::Known`]); that took 27% off a seed solve's
+//!   instructions. Otherwise each entry is tested at run time
+//!   ([`Nonzeros::Tested`]): dense models lose only the compare. Skipping
+//!   `0·x` changes a result only when `x` is infinite or NaN, and the
+//!   Riccati step rejects non-finite gains either way.
 //! * Symmetric results (`Q_xx`, `V_xx`) are formed as lower triangles and
 //!   mirrored: half the work, and exactly symmetric whatever the rounding.
 //! * `Q_uu + μI` is factorised as `L D Lᵀ`, with one division per pivot and
@@ -48,39 +51,82 @@ pub(crate) fn dot<const N: usize>(x: &Col<N>, y: &Col<N>) -> f64 {
     acc
 }
 
-/// `out += m·n` (`m` is `R×K`, `n` is `K×C`, both column-major). With
-/// `SPARSE`, the zeros of `n` are skipped.
+/// Which entries of a matrix a product may skip as zeros.
+#[derive(Clone, Copy)]
+pub(crate) enum Nonzeros<'a, const R: usize, const C: usize> {
+    /// None: every entry is used.
+    All,
+    /// The entries that are exactly zero, tested one by one at run time.
+    Tested,
+    /// Those outside this pattern (column-major, `[column][row]`), untested.
+    /// Constant after inlining, the tests fold away and the loops over the
+    /// pattern unroll to its entries.
+    Known(&'a [[bool; R]; C]),
+}
+
+impl<const R: usize, const C: usize> Nonzeros<'_, R, C> {
+    /// Whether entry `(i, j)` of `n` takes part in a product.
+    #[inline(always)]
+    fn used(self, n: &[Col<R>; C], i: usize, j: usize) -> bool {
+        match self {
+            Self::All => true,
+            Self::Tested => n[j][i] != 0.0,
+            Self::Known(pattern) => pattern[j][i],
+        }
+    }
+
+    /// `n[:, j]ᵀ·y`, over the known pattern only: with `Tested` a test per
+    /// entry would cost as much as the product it saves.
+    #[inline(always)]
+    pub(crate) fn dot_column(self, n: &[Col<R>; C], j: usize, y: &Col<R>) -> f64 {
+        match self {
+            Self::Known(pattern) => {
+                let mut acc = 0.0;
+                for i in 0..R {
+                    if pattern[j][i] {
+                        acc += n[j][i] * y[i];
+                    }
+                }
+                acc
+            }
+            Self::All | Self::Tested => dot(&n[j], y),
+        }
+    }
+}
+
+/// `out += m·n` (`m` is `R×K`, `n` is `K×C`, both column-major), skipping
+/// the entries of `n` that `nz` says are zero.
 #[inline(always)]
-pub(crate) fn add_mul<const R: usize, const K: usize, const C: usize, const SPARSE: bool>(
+pub(crate) fn add_mul<const R: usize, const K: usize, const C: usize>(
     out: &mut [Col<R>; C],
     m: &[Col<R>; K],
     n: &[Col<K>; C],
+    nz: Nonzeros<'_, K, C>,
 ) {
     for j in 0..C {
         for k in 0..K {
-            let nkj = n[j][k];
-            if SPARSE && nkj == 0.0 {
-                continue;
+            if nz.used(n, k, j) {
+                axpy(&mut out[j], n[j][k], &m[k]);
             }
-            axpy(&mut out[j], nkj, &m[k]);
         }
     }
 }
 
 /// `m·n` for a square, sparse `n` with a non-zero diagonal (a Jacobian
 /// `I + dt·∂f/∂x`): the diagonal term assigns each output column and the
-/// other non-zeros are added, so the result never needs zeroing first.
+/// other entries `nz` keeps are added, so the result never needs zeroing
+/// first. (A zero on the diagonal costs a product, nothing more.)
 #[inline(always)]
 pub(crate) fn mul_square_sparse<const R: usize, const N: usize>(
     m: &[Col<R>; N],
     n: &[Col<N>; N],
+    nz: Nonzeros<'_, N, N>,
 ) -> [Col<R>; N] {
     let mut out: [Col<R>; N] = std::array::from_fn(|j| m[j].map(|x| x * n[j][j]));
     for j in 0..N {
         for k in 0..N {
-            let nkj = n[j][k];
-            if k != j && nkj != 0.0 {
-                axpy(&mut out[j], nkj, &m[k]);
+            if k != j && nz.used(n, k, j) {
+                axpy(&mut out[j], n[j][k], &m[k]);
             }
         }
     }
@@ -103,17 +149,18 @@ pub(crate) fn transpose<const R: usize, const C: usize>(m: &[Col<R>; C]) -> [Col
 /// triangle of `out` is left as it was. Half the work of [`add_mul`] for a
 /// product known to be symmetric.
 #[inline(always)]
-pub(crate) fn add_mul_lower<const N: usize, const K: usize, const SPARSE: bool>(
+pub(crate) fn add_mul_lower<const N: usize, const K: usize>(
     out: &mut [Col<N>; N],
     m: &[Col<N>; K],
     n: &[Col<K>; N],
+    nz: Nonzeros<'_, K, N>,
 ) {
     for j in 0..N {
         for k in 0..K {
-            let nkj = n[j][k];
-            if SPARSE && nkj == 0.0 {
+            if !nz.used(n, k, j) {
                 continue;
             }
+            let nkj = n[j][k];
             for i in j..N {
                 out[j][i] += nkj * m[k][i];
             }

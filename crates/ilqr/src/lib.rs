@@ -10,7 +10,8 @@
 //! * [`dynamics`]: the [`ContinuousDynamics`] and [`DiscreteDynamics`] traits
 //!   and the explicit [`Euler`] integrator (eq. 9 of the seed paper) that turns
 //!   one into the other; optionally the dynamics' second derivatives
-//!   ([`Curvature`]) for DDP.
+//!   ([`Curvature`]) for DDP and the Jacobians' pattern of zeros
+//!   ([`Sparsity`]), which the backward pass is compiled for.
 //! * [`quadrotor`]: the planar quadrotor of eqs. 4–6 with analytic Jacobians
 //!   (eq. 11) and curvature.
 //! * [`cost`]: the [`Cost`] trait the solver minimises, its quadratic model
@@ -65,7 +66,7 @@ pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
     TerminalCost, TerminalExpansion, TerminalTracking,
 };
-pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler};
+pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler, Sparsity};
 pub use quadrotor::Quadrotor2D;
 pub use solver::{
     Options, Problem, RiccatiStep, SolveError, Solver, Status, Summary, TraceRow, Value,

@@ -15,7 +15,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use crate::dynamics::{ContinuousDynamics, Curvature};
+use crate::dynamics::{ContinuousDynamics, Curvature, Sparsity};
 
 /// Physical parameters of the planar quadrotor. All must be positive and
 /// finite; `ilqr-service` validates that before building one.
@@ -80,6 +80,12 @@ impl ContinuousDynamics<6, 2> for Quadrotor2D {
         );
         (f_x, f_u)
     }
+
+    /// The entries [`Self::jacobians`] sets: 5 of 36 and 6 of 12.
+    const JACOBIAN_SPARSITY: Option<Sparsity<6, 2>> = Some(Sparsity::from_entries(
+        &[(0, 3), (1, 4), (2, 5), (3, 2), (4, 2)],
+        &[(3, 0), (3, 1), (4, 0), (4, 1), (5, 0), (5, 1)],
+    ));
 
     /// Only the two translational accelerations are curved, in θ and the
     /// thrust: `−s·sinθ/m` and `s·cosθ/m − g` with `s = u1 + u2`. They are

@@ -41,10 +41,10 @@ use std::time::{Duration, Instant};
 use nalgebra::{SMatrix, SVector};
 
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
-use crate::dynamics::DiscreteDynamics;
+use crate::dynamics::{DiscreteDynamics, Sparsity};
 use crate::kernels::{
-    add_mul, add_mul_lower, axpy, copy_lower, dot, ldlt, ldlt_solve_right, ldlt_solve_vec,
-    mirror_lower, mul_square_sparse, transpose,
+    Nonzeros, add_mul, add_mul_lower, axpy, copy_lower, dot, ldlt, ldlt_solve_right,
+    ldlt_solve_vec, mirror_lower, mul_square_sparse, transpose,
 };
 
 /// Knots between two polls of the cancellation flag and the time budget
@@ -602,9 +602,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // The dynamics' curvature for the backward pass: with
         // `second_order`, except under the convex model, which keeps only
         // the curvature that cannot be negative.
-        let second = |model: Model| {
-            (options.second_order && model != Model::Convex).then_some(&problem.dynamics)
-        };
+        let second = |model: Model| options.second_order && model != Model::Convex;
         // Whether a step was accepted since the last change of `model`.
         // The convex expansion cannot tell a minimum from a maximum or a
         // saddle (the curvature that would is what it drops): where it finds
@@ -642,7 +640,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
 
             // 2. Backward pass, raising μ until Q_uu + μI is positive definite.
             let mut bw = loop {
-                match self.backward(mu, second(model), &interrupted) {
+                match self.backward(&problem.dynamics, mu, second(model), &interrupted) {
                     Ok(bw) => {
                         has_gains = true;
                         gains_current = true;
@@ -728,7 +726,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // and it ended `NoProgress` at a solution converged to 1e-16
                 // (`dt = 10`, no obstacles).
                 if negligible(&bw) && mu > options.mu_min && !probe_failed {
-                    match self.backward(0.0, second(model), &interrupted) {
+                    match self.backward(&problem.dynamics, 0.0, second(model), &interrupted) {
                         Ok(unregularised) => {
                             bw = unregularised;
                             mu_before_probe = Some(mu);
@@ -930,7 +928,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 if mu >= gains_mu && !relinearized {
                     break;
                 }
-                if self.backward(mu, second(model), &interrupted).is_ok() {
+                if self
+                    .backward(&problem.dynamics, mu, second(model), &interrupted)
+                    .is_ok()
+                {
                     gains_mu = mu;
                     gains_convex = model == Model::Convex;
                     break;
@@ -999,11 +1000,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     #[allow(non_snake_case)]
     fn backward<D: DiscreteDynamics<NX, NU>>(
         &mut self,
+        dynamics: &D,
         mu: f64,
-        second: Option<&D>,
+        second: bool,
         interrupted: &impl Fn() -> Option<Status>,
     ) -> Result<Backward, Unfinished> {
         let n = self.us.len();
+        // A constant of `D`'s, so the Riccati step is compiled for it.
+        let sparsity: &'static Option<Sparsity<NX, NU>> = const { &D::SPARSITY };
+        let second = second.then_some(dynamics);
         // Ping-pong between two value functions: knot k reads one and
         // writes the other.
         let mut next = Value {
@@ -1037,6 +1042,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 stage,
                 &next,
                 mu,
+                sparsity.as_ref(),
                 &mut self.K_next[k],
                 &mut self.d_next[k],
                 &mut here,
@@ -1134,19 +1140,31 @@ pub struct RiccatiStep<const NX: usize, const NU: usize> {
 /// consistent for any `K` and `d`. Returns `None` when `Q_uu + μI` is not
 /// positive definite (or the gains are not finite).
 ///
+/// `sparsity`, where given, says which entries of `A` and `B` can be
+/// non-zero (see [`Sparsity`]; the others are taken as zero, untested);
+/// without it the exact zeros are found at run time. The results are the
+/// same either way whenever `A`, `B` and the value function are finite and
+/// `A`, `B` fit the pattern.
+///
 /// The arithmetic is arranged for speed (see `kernels`): every product is a
 /// sum of column axpys, products with `A` and `B` skip their zeros, the
 /// symmetric `Q_xx` and `V_xx` are formed as lower triangles (so `V_xx` is
 /// exactly symmetric, whatever the rounding), `Q_uu + μI` is factorised as
 /// `L D Lᵀ` (no square roots on the critical path), and `K` is formed
 /// transposed (`Kᵀ = −Q_xu (Q_uu + μI)⁻¹`, `NX×NU`) so its columns are long.
+///
+/// Always inlined, so that a constant `sparsity` folds into the caller's
+/// copy as it does in the solver's (a pattern read at run time costs more
+/// than the zeros it skips).
 #[allow(non_snake_case)]
+#[inline(always)]
 pub fn riccati_step<const NX: usize, const NU: usize>(
     A: &SMatrix<f64, NX, NX>,
     B: &SMatrix<f64, NX, NU>,
     l: &StageExpansion<NX, NU>,
     next: &Value<NX>,
     mu: f64,
+    sparsity: Option<&Sparsity<NX, NU>>,
 ) -> Option<RiccatiStep<NX, NU>> {
     let mut out = RiccatiStep {
         K: SMatrix::zeros(),
@@ -1158,7 +1176,17 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
         dv1: 0.0,
         dv2: 0.0,
     };
-    let (dv1, dv2) = riccati_step_into(A, B, l, next, mu, &mut out.K, &mut out.d, &mut out.value)?;
+    let (dv1, dv2) = riccati_step_into(
+        A,
+        B,
+        l,
+        next,
+        mu,
+        sparsity,
+        &mut out.K,
+        &mut out.d,
+        &mut out.value,
+    )?;
     out.dv1 = dv1;
     out.dv2 = dv2;
     Some(out)
@@ -1176,21 +1204,24 @@ fn riccati_step_into<const NX: usize, const NU: usize>(
     l: &StageExpansion<NX, NU>,
     next: &Value<NX>,
     mu: f64,
+    sparsity: Option<&Sparsity<NX, NU>>,
     K_out: &mut SMatrix<f64, NU, NX>,
     d_out: &mut SVector<f64, NU>,
     value: &mut Value<NX>,
 ) -> Option<(f64, f64)> {
-    const SPARSE: bool = true;
-    const DENSE: bool = false;
+    let (nz_a, nz_b) = match sparsity {
+        Some(p) => (Nonzeros::Known(&p.state), Nonzeros::Known(&p.control)),
+        None => (Nonzeros::Tested, Nonzeros::Tested),
+    };
     let a = &A.data.0;
     let b = &B.data.0;
     let v = &next.V_xx.data.0;
     let v_x = &next.V_x.data.0[0];
 
     // P = V_xx·A and V_xx·B, shared by eqs. 33–35.
-    let P = mul_square_sparse(v, a);
+    let P = mul_square_sparse(v, a, nz_a);
     let mut VB = [[0.0; NX]; NU];
-    add_mul::<NX, NX, NU, SPARSE>(&mut VB, v, b);
+    add_mul(&mut VB, v, b, nz_b);
     // Pᵀ = Aᵀ·V_xx, because V_xx is symmetric.
     let Pt = transpose(&P);
 
@@ -1198,26 +1229,26 @@ fn riccati_step_into<const NX: usize, const NU: usize>(
     // built where V_xx will be (eq. 48 adds to it).
     let V_xx = &mut value.V_xx.data.0;
     copy_lower(V_xx, &l.l_xx.data.0);
-    add_mul_lower::<NX, NX, SPARSE>(V_xx, &Pt, a);
+    add_mul_lower(V_xx, &Pt, a, nz_a);
     // Eq. 35, transposed: Q_xu = l_uxᵀ + Aᵀ V_xx B = l_uxᵀ + Pᵀ·B.
     let mut Q_xu = transpose(&l.l_ux.data.0);
-    add_mul::<NX, NX, NU, SPARSE>(&mut Q_xu, &Pt, b);
+    add_mul(&mut Q_xu, &Pt, b, nz_b);
     // Eq. 34: Q_uu = l_uu + Bᵀ V_xx B.
     let mut Q_uu = l.l_uu.data.0;
-    for j in 0..NU {
-        for i in 0..NU {
-            Q_uu[j][i] += dot(&b[i], &VB[j]);
+    for (j, col) in Q_uu.iter_mut().enumerate() {
+        for (i, q) in col.iter_mut().enumerate() {
+            *q += nz_b.dot_column(b, i, &VB[j]);
         }
     }
     // Eqs. 31–32: Q_x = l_x + Aᵀ V_x (built where V_x will be), Q_u = l_u + Bᵀ V_x.
     let V_x = &mut value.V_x.data.0[0];
     *V_x = l.l_x.data.0[0];
     for (i, q) in V_x.iter_mut().enumerate() {
-        *q += dot(&a[i], v_x);
+        *q += nz_a.dot_column(a, i, v_x);
     }
     let mut Q_u = l.l_u.data.0[0];
     for (i, q) in Q_u.iter_mut().enumerate() {
-        *q += dot(&b[i], v_x);
+        *q += nz_b.dot_column(b, i, v_x);
     }
 
     // Eqs. 43–44 with Q_uu + μI: d = −(Q_uu + μI)⁻¹Q_u, Kᵀ = −Q_xu(Q_uu + μI)⁻¹.
@@ -1247,10 +1278,10 @@ fn riccati_step_into<const NX: usize, const NU: usize>(
     // with Mt = KᵀQ_uu + Q_xu. It is symmetric, so the lower triangle is
     // computed and mirrored.
     let mut Mt = Q_xu;
-    add_mul::<NX, NU, NU, DENSE>(&mut Mt, &Kt, &Q_uu);
+    add_mul(&mut Mt, &Kt, &Q_uu, Nonzeros::All);
     let K = transpose(&Kt);
-    add_mul_lower::<NX, NU, DENSE>(V_xx, &Kt, &transpose(&Mt));
-    add_mul_lower::<NX, NU, DENSE>(V_xx, &Q_xu, &K);
+    add_mul_lower(V_xx, &Kt, &transpose(&Mt), Nonzeros::All);
+    add_mul_lower(V_xx, &Q_xu, &K, Nonzeros::All);
     mirror_lower(V_xx);
 
     K_out.data.0 = K;
@@ -1396,7 +1427,7 @@ mod tests {
     }
 
     /// The backward pass without the dynamics' curvature (iLQR).
-    const FIRST_ORDER: Option<&Euler<Quadrotor2D>> = None;
+    const FIRST_ORDER: bool = false;
 
     /// A poll that counts its calls and interrupts from call `stop_at` on.
     fn poll(calls: &Cell<usize>, stop_at: usize) -> impl Fn() -> Option<Status> + '_ {
@@ -1425,7 +1456,12 @@ mod tests {
         // A large μ, so the pass completes.
         assert!(
             solver
-                .backward(1e6, FIRST_ORDER, &poll(&calls, usize::MAX))
+                .backward(
+                    &problem.dynamics,
+                    1e6,
+                    FIRST_ORDER,
+                    &poll(&calls, usize::MAX)
+                )
                 .is_ok()
         );
         assert!(
@@ -1452,7 +1488,12 @@ mod tests {
         );
         assert!(
             solver
-                .backward(1e6, FIRST_ORDER, &poll(&never, usize::MAX))
+                .backward(
+                    &problem.dynamics,
+                    1e6,
+                    FIRST_ORDER,
+                    &poll(&never, usize::MAX)
+                )
                 .is_ok()
         );
         let (k, d) = (solver.K.clone(), solver.d.clone());
@@ -1460,7 +1501,7 @@ mod tests {
         // second poll, part-way through.
         let calls = Cell::new(0);
         assert!(matches!(
-            solver.backward(1e3, FIRST_ORDER, &poll(&calls, 2)),
+            solver.backward(&problem.dynamics, 1e3, FIRST_ORDER, &poll(&calls, 2)),
             Err(Unfinished::Interrupted(Status::Cancelled))
         ));
         assert_eq!(calls.get(), 2);

@@ -1,6 +1,7 @@
 //! Analytic derivatives against central finite differences at random
 //! points: the dynamics Jacobians (eq. 11) and every cost term's gradient and
-//! Hessian (eqs. 18–23), including the obstacle's indefinite Hessian.
+//! Hessian (eqs. 18–23), including the obstacle's indefinite Hessian; and
+//! the Jacobians' stated sparsity pattern against both.
 
 use ilqr::{
     ContinuousDynamics, ControlEffort, DiscreteDynamics, Euler, ExpObstacle, Quadrotor2D,
@@ -146,6 +147,32 @@ proptest! {
         assert_close(&c.xx, &h.fixed_view::<6, 6>(0, 0).into_owned(), 1e-5, "xx")?;
         assert_close(&c.ux, &h.fixed_view::<2, 6>(6, 0).into_owned(), 1e-5, "ux")?;
         assert_close(&c.uu, &h.fixed_view::<2, 2>(6, 6).into_owned(), 1e-5, "uu")?;
+    }
+
+    /// The solver takes the entries outside the stated pattern as zero
+    /// without looking, so it must hold everywhere: for the analytic
+    /// Jacobians exactly, and for the finite differences of the vector
+    /// field (the pattern is the model's, not only its Jacobians').
+    #[test]
+    fn quadrotor_jacobians_fit_their_stated_pattern(
+        m in model(), x in state(), u in control(), dt in 0.001..0.2f64,
+    ) {
+        let pattern = Quadrotor2D::JACOBIAN_SPARSITY.expect("the quadrotor states its pattern");
+        let (f_x, f_u) = m.jacobians(&x, &u);
+        prop_assert!(pattern.admits(&f_x, &f_u), "f_x {f_x} f_u {f_u}");
+        let fd_x = jacobian(|x| m.derivative(x, &u), &x);
+        let fd_u = jacobian(|u| m.derivative(&x, u), &u);
+        let zero_outside = |used: &[[bool; 6]], fd: &[[f64; 6]]| {
+            used.iter().flatten().zip(fd.iter().flatten()).all(|(&used, &v)| used || v.abs() < 1e-9)
+        };
+        prop_assert!(zero_outside(&pattern.state, &fd_x.data.0), "{fd_x}");
+        prop_assert!(zero_outside(&pattern.control, &fd_u.data.0), "{fd_u}");
+        // Euler's adds the diagonal of I.
+        let d = Euler { model: m, dt };
+        let stepped = <Euler<Quadrotor2D> as DiscreteDynamics<6, 2>>::SPARSITY.expect("Euler keeps it");
+        prop_assert_eq!(stepped, pattern.with_identity());
+        let (a, b) = d.linearize(&x, &u);
+        prop_assert!(stepped.admits(&a, &b), "A {a} B {b}");
     }
 
     #[test]

@@ -1170,3 +1170,78 @@ fn ddp_predicts_its_step_where_ilqr_does_not() {
     );
     assert!(ilqr < 0.1, "iLQR gained {ilqr} of its prediction");
 }
+
+/// The seed's dynamics without their stated sparsity pattern: the backward
+/// pass then finds the zeros of `A` and `B` at run time.
+struct Unstated(ilqr::Euler<ilqr::Quadrotor2D>);
+
+impl DiscreteDynamics<6, 2> for Unstated {
+    fn step(&self, x: &SVector<f64, 6>, u: &Vector2<f64>) -> SVector<f64, 6> {
+        self.0.step(x, u)
+    }
+    fn linearize(
+        &self,
+        x: &SVector<f64, 6>,
+        u: &Vector2<f64>,
+    ) -> (nalgebra::SMatrix<f64, 6, 6>, nalgebra::SMatrix<f64, 6, 2>) {
+        self.0.linearize(x, u)
+    }
+    fn curvature(
+        &self,
+        x: &SVector<f64, 6>,
+        u: &Vector2<f64>,
+        lambda: &SVector<f64, 6>,
+    ) -> Option<ilqr::Curvature<6, 2>> {
+        self.0.curvature(x, u, lambda)
+    }
+}
+
+/// The stated pattern only saves work: the seed solves to the same
+/// numbers, to the bit, with it and without it, as iLQR and as DDP. (The
+/// pattern skips exactly the zeros the run-time test finds, and the sums
+/// it leaves out are of exact zeros.)
+#[test]
+fn the_stated_sparsity_changes_no_number() {
+    for second_order in [false, true] {
+        let options = Options {
+            second_order,
+            ..Options::default()
+        };
+        assert!(<Seed as HasDynamics>::Dynamics::SPARSITY.is_some());
+        let (stated, s) = solve_with(&options);
+        let seed = seed_problem(100, 0.05);
+        let problem = ilqr::Problem {
+            dynamics: Unstated(seed.dynamics),
+            cost: seed.cost,
+            x0: seed.x0,
+            horizon: seed.horizon,
+        };
+        let mut unstated = Solver::<6, 2>::new(100);
+        let u = unstated
+            .solve(&problem, &hover(100), &options, &AtomicBool::new(false))
+            .expect("the problem is valid");
+        assert_eq!(
+            (s.status, s.iterations, s.cost),
+            (u.status, u.iterations, u.cost)
+        );
+        assert_eq!(stated.states(), unstated.states());
+        assert_eq!(stated.controls(), unstated.controls());
+        assert_eq!(stated.feedback(), unstated.feedback());
+        assert_eq!(stated.feedforward(), unstated.feedforward());
+        let model = |t: &[ilqr::TraceRow]| {
+            t.iter()
+                .map(|r| (r.cost, r.expected_reduction, r.step_size, r.regularization))
+                .collect::<Vec<_>>()
+        };
+        assert_eq!(model(stated.trace()), model(unstated.trace()));
+    }
+}
+
+/// Names the dynamics type of a problem type.
+trait HasDynamics {
+    type Dynamics;
+}
+
+impl<D, C, const NX: usize> HasDynamics for ilqr::Problem<D, C, NX> {
+    type Dynamics = D;
+}

@@ -1,8 +1,9 @@
 //! The optimised Riccati step against the textbook formulas (eqs. 31–48)
 //! written with plain nalgebra products and a matrix inverse, on random
-//! inputs: dense and sparse Jacobians, with and without regularisation.
+//! inputs: dense and sparse Jacobians, with and without regularisation,
+//! with the zeros found at run time and with a stated [`Sparsity`].
 
-use ilqr::{StageExpansion, Value, riccati_step};
+use ilqr::{Sparsity, StageExpansion, Value, riccati_step};
 use nalgebra::{SMatrix, SVector};
 use proptest::prelude::*;
 
@@ -106,16 +107,67 @@ proptest! {
     #[allow(non_snake_case)]
     fn riccati_step_matches_the_textbook_formulas((A, B, l, next, mu) in knot()) {
         let want = reference(&A, &B, &l, &next, mu);
-        let got = riccati_step(&A, &B, &l, &next, mu).expect("Q_uu + μI is positive definite");
-        close("K", &got.K, &want.K)?;
-        close("d", &got.d, &want.d)?;
-        close("V_x", &got.value.V_x, &want.V_x)?;
-        close("V_xx", &got.value.V_xx, &want.V_xx)?;
-        prop_assert_eq!(got.value.V_xx, got.value.V_xx.transpose(), "V_xx is exactly symmetric");
-        let scale = want.dv1.abs().max(1.0);
-        prop_assert!((got.dv1 - want.dv1).abs() <= 1e-9 * scale);
-        prop_assert!((got.dv2 - want.dv2).abs() <= 1e-9 * scale);
+        // The zeros found at run time, then stated: exactly where they
+        // are, and (a pattern may be loose) not at all.
+        let exact = pattern_of(&A, &B);
+        let unstated = riccati_step(&A, &B, &l, &next, mu, None).expect("Q_uu + μI is positive definite");
+        for sparsity in [None, Some(&exact), Some(&Sparsity::DENSE)] {
+            let got = riccati_step(&A, &B, &l, &next, mu, sparsity).expect("Q_uu + μI is positive definite");
+            close("K", &got.K, &want.K)?;
+            close("d", &got.d, &want.d)?;
+            close("V_x", &got.value.V_x, &want.V_x)?;
+            close("V_xx", &got.value.V_xx, &want.V_xx)?;
+            prop_assert_eq!(got.value.V_xx, got.value.V_xx.transpose(), "V_xx is exactly symmetric");
+            let scale = want.dv1.abs().max(1.0);
+            prop_assert!((got.dv1 - want.dv1).abs() <= 1e-9 * scale);
+            prop_assert!((got.dv2 - want.dv2).abs() <= 1e-9 * scale);
+        }
+        // Skipping the same zeros by the pattern as by the test at run time
+        // leaves every sum as it was: the same numbers, to the bit.
+        prop_assert_eq!(riccati_step(&A, &B, &l, &next, mu, Some(&exact)), Some(unstated));
     }
+}
+
+/// The pattern of the non-zero entries of `(A, B)`.
+#[allow(non_snake_case)]
+fn pattern_of(A: &M6, B: &M62) -> Sparsity<6, 2> {
+    let mut p = Sparsity::DENSE;
+    for j in 0..6 {
+        for i in 0..6 {
+            p.state[j][i] = A[(i, j)] != 0.0;
+        }
+        for (c, column) in p.control.iter_mut().enumerate() {
+            column[j] = B[(j, c)] != 0.0;
+        }
+    }
+    p
+}
+
+/// A stated pattern is trusted, not checked: an entry outside it is taken
+/// as zero. (What makes a model's pattern right is its own test, in
+/// `derivatives.rs`.) This shows the pattern is what the step uses.
+#[test]
+#[allow(non_snake_case)]
+fn entries_outside_a_stated_pattern_are_taken_as_zero() {
+    let B = M62::from_column_slice(&[0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0]);
+    let next = Value {
+        V_x: SVector::from([1.0, 2.0, 3.0, 4.0, 5.0, 6.0]),
+        V_xx: M6::identity() * 2.0,
+    };
+    let mut l = StageExpansion::zeros();
+    l.l_uu = SMatrix::<f64, 2, 2>::identity() * 0.2;
+    // A with one entry the pattern leaves out, and the same A without it.
+    let mut A = M6::identity();
+    A[(0, 3)] = 0.05;
+    let mut pattern = pattern_of(&M6::identity(), &B);
+    let with = riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)).unwrap();
+    let without = riccati_step(&M6::identity(), &B, &l, &next, 0.0, None).unwrap();
+    assert_eq!(with, without);
+    // Stated, the entry counts.
+    pattern.state[3][0] = true;
+    let stated = riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)).unwrap();
+    assert_eq!(stated, riccati_step(&A, &B, &l, &next, 0.0, None).unwrap());
+    assert_ne!(stated, without);
 }
 
 /// `Q_uu + μI` that is not positive definite is reported, not factorised.
@@ -131,7 +183,9 @@ fn an_indefinite_q_uu_is_rejected_until_mu_is_large_enough() {
     let mut l = StageExpansion::zeros();
     l.l_uu = SMatrix::<f64, 2, 2>::identity() * 0.2;
     // Q_uu = diag(0.2 − 3, 0.2 + 1): one negative eigenvalue, −2.8.
-    assert!(riccati_step(&A, &B, &l, &next, 0.0).is_none());
-    assert!(riccati_step(&A, &B, &l, &next, 2.7).is_none());
-    assert!(riccati_step(&A, &B, &l, &next, 2.9).is_some());
+    for sparsity in [None, Some(&pattern_of(&A, &B))] {
+        assert!(riccati_step(&A, &B, &l, &next, 0.0, sparsity).is_none());
+        assert!(riccati_step(&A, &B, &l, &next, 2.7, sparsity).is_none());
+        assert!(riccati_step(&A, &B, &l, &next, 2.9, sparsity).is_some());
+    }
 }
