@@ -168,7 +168,7 @@ pub struct Options {
     /// nothing, and without the bound the solve ends `NoProgress`).
     ///
     /// "Attains" is up to round-off: within ε² (4.9e-32) of the initial
-    /// cost's distance from the bound ([`ROUND_OFF_FLOOR`]). A zero optimum
+    /// cost's distance from the bound (`ROUND_OFF_FLOOR`). A zero optimum
     /// is rarely reached exactly: a terminal-only cost (initial 82) came to
     /// rest at 7.8e-34, the states 1e-17 from the goal, where the relative
     /// test would need a gain of 1e-43 that round-off never gives; that

@@ -9,7 +9,7 @@
 //! knots; the bound asserted is that, so a pass that ran to its end (10000
 //! knots) fails.
 
-mod common;
+use crate::common;
 
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
 

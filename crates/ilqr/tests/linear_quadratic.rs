@@ -36,7 +36,7 @@
 //! `mu_init = 100` (eight iterations).
 #![allow(non_snake_case)]
 
-mod common;
+use crate::common;
 
 use std::sync::atomic::AtomicBool;
 

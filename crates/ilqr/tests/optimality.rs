@@ -22,7 +22,7 @@
 //! default tolerance mutated from 1e-9 to 1e-8, the first check failed (a
 //! converged solve left 5.3e-7); at 1e-7 both failed.
 
-mod common;
+use crate::common;
 
 use std::sync::atomic::AtomicBool;
 

@@ -2,7 +2,7 @@
 //! (x0 = [5,0,0,0,0,0], goal = [4,9,0,0,0,0], one obstacle at (4.5, 4.5),
 //! dt = 0.05, N = 100, hover initial controls).
 
-mod common;
+use crate::common;
 
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::Duration;
