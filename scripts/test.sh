@@ -82,8 +82,8 @@ trap - EXIT
 step "fuzz targets compile, lint clean (running them: README, Fuzzing)"
 # With the root's release settings (Cargo.toml [profile.release]) instead of
 # fuzz/'s own, which differ for symbolised crash reports: the lint then
-# reuses most of what the root's build already compiled (about 50 s instead
-# of 2 min from a cold target directory). A change to the root's profile
+# reuses most of what the root's clippy step above already checked and
+# compiled (about 50 s instead of 2 min from a cold target directory). A change to the root's profile
 # that is not made here costs time, nothing else.
 (cd fuzz && cargo fmt -- --check \
   && CARGO_PROFILE_RELEASE_DEBUG=line-tables-only CARGO_PROFILE_RELEASE_LTO=thin \

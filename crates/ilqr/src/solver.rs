@@ -1142,9 +1142,12 @@ pub struct RiccatiStep<const NX: usize, const NU: usize> {
 ///
 /// `sparsity`, where given, says which entries of `A` and `B` can be
 /// non-zero (see [`Sparsity`]; the others are taken as zero, untested);
-/// without it the exact zeros are found at run time. The results are the
-/// same either way whenever `A`, `B` and the value function are finite and
-/// `A`, `B` fit the pattern.
+/// without it the exact zeros are found at run time. The results are equal
+/// either way (under `==`) whenever `A`, `B` and the value function are
+/// finite and `A`, `B` fit the pattern; a debug build asserts the fit.
+/// Where a product overflows, an entry inside the pattern that is zero
+/// at the point gives `0·∞ = NaN` where the run-time test skipped it; the
+/// step then reports `None`, as for any non-finite gain.
 ///
 /// The arithmetic is arranged for speed (see `kernels`): every product is a
 /// sum of column axpys, products with `A` and `B` skip their zeros, the
@@ -1154,8 +1157,9 @@ pub struct RiccatiStep<const NX: usize, const NU: usize> {
 /// transposed (`Kᵀ = −Q_xu (Q_uu + μI)⁻¹`, `NX×NU`) so its columns are long.
 ///
 /// Always inlined, so that a constant `sparsity` folds into the caller's
-/// copy as it does in the solver's (a pattern read at run time costs more
-/// than the zeros it skips).
+/// copy as it does in the solver's: a pattern read at run time trades the
+/// test of each entry's value for a test of its flag, and one knot took
+/// as long as with no pattern (BENCHMARKS.md).
 #[allow(non_snake_case)]
 #[inline(always)]
 pub fn riccati_step<const NX: usize, const NU: usize>(
@@ -1209,6 +1213,10 @@ fn riccati_step_into<const NX: usize, const NU: usize>(
     d_out: &mut SVector<f64, NU>,
     value: &mut Value<NX>,
 ) -> Option<(f64, f64)> {
+    debug_assert!(
+        sparsity.is_none_or(|p| p.admits(A, B)),
+        "A or B has a non-zero entry outside the stated sparsity pattern"
+    );
     let (nz_a, nz_b) = match sparsity {
         Some(p) => (Nonzeros::Known(&p.state), Nonzeros::Known(&p.control)),
         None => (Nonzeros::Tested, Nonzeros::Tested),

@@ -1197,9 +1197,11 @@ impl DiscreteDynamics<6, 2> for Unstated {
 }
 
 /// The stated pattern only saves work: the seed solves to the same
-/// numbers, to the bit, with it and without it, as iLQR and as DDP. (The
-/// pattern skips exactly the zeros the run-time test finds, and the sums
-/// it leaves out are of exact zeros.)
+/// numbers with it and without it, as iLQR and as DDP (equal under `==`,
+/// which does not tell a zero's sign). The pattern skips some of the zeros
+/// the run-time test finds; the others are entries inside the pattern that
+/// are zero at the point (at θ = 0, `∂ẍ/∂u` and `∂ÿ/∂θ`), and the products
+/// with them add nothing to finite sums.
 #[test]
 fn the_stated_sparsity_changes_no_number() {
     for second_order in [false, true] {

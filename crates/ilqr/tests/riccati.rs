@@ -123,7 +123,8 @@ proptest! {
             prop_assert!((got.dv2 - want.dv2).abs() <= 1e-9 * scale);
         }
         // Skipping the same zeros by the pattern as by the test at run time
-        // leaves every sum as it was: the same numbers, to the bit.
+        // leaves every sum as it was (equal under `==`; the dot products
+        // the pattern shortens add only exact zeros).
         prop_assert_eq!(riccati_step(&A, &B, &l, &next, mu, Some(&exact)), Some(unstated));
     }
 }
@@ -143,9 +144,10 @@ fn pattern_of(A: &M6, B: &M62) -> Sparsity<6, 2> {
     p
 }
 
-/// A stated pattern is trusted, not checked: an entry outside it is taken
-/// as zero. (What makes a model's pattern right is its own test, in
-/// `derivatives.rs`.) This shows the pattern is what the step uses.
+/// A stated pattern is trusted, not checked, in a release build: an entry
+/// outside it is taken as zero. (What makes a model's pattern right is its
+/// own test, in `derivatives.rs`.) This shows the pattern is what the step
+/// uses. A debug build asserts instead that the matrices fit it.
 #[test]
 #[allow(non_snake_case)]
 fn entries_outside_a_stated_pattern_are_taken_as_zero() {
@@ -160,9 +162,18 @@ fn entries_outside_a_stated_pattern_are_taken_as_zero() {
     let mut A = M6::identity();
     A[(0, 3)] = 0.05;
     let mut pattern = pattern_of(&M6::identity(), &B);
-    let with = riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)).unwrap();
     let without = riccati_step(&M6::identity(), &B, &l, &next, 0.0, None).unwrap();
-    assert_eq!(with, without);
+    if cfg!(debug_assertions) {
+        let broken =
+            std::panic::catch_unwind(|| riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)));
+        assert!(
+            broken.is_err(),
+            "a debug build refuses A outside its pattern"
+        );
+    } else {
+        let with = riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)).unwrap();
+        assert_eq!(with, without);
+    }
     // Stated, the entry counts.
     pattern.state[3][0] = true;
     let stated = riccati_step(&A, &B, &l, &next, 0.0, Some(&pattern)).unwrap();
