@@ -316,3 +316,24 @@ def test_a_deadline_must_be_a_positive_number_of_seconds(deadline: object) -> No
     with Client("http://127.0.0.1:1") as client:
         with pytest.raises(ValueError, match="deadline must be a positive number of seconds"):
             client.solve({}, deadline=deadline)  # type: ignore[arg-type]
+        with pytest.raises(ValueError, match="deadline must be a positive number of seconds"):
+            client.default_problem(deadline=deadline)  # type: ignore[arg-type]
+
+
+def test_a_deadline_bounds_fetching_the_default_problem(single_worker: ServiceProcess) -> None:
+    import socket
+
+    # Connected, never answered: without a deadline the client's 30 s read
+    # timeout would apply.
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        with Client(f"http://127.0.0.1:{silent.getsockname()[1]}", timeout=30) as client:
+            started = time.monotonic()
+            with pytest.raises(requests.Timeout):
+                client.default_problem(deadline=0.3)
+            assert 0.25 <= time.monotonic() - started < 2
+    # Against the service it is the default, whole.
+    with Client(single_worker.url) as client:
+        problem = client.default_problem(deadline=5)
+        assert problem.horizon == 100 and len(problem.initial_state) == 6

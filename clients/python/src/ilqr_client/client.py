@@ -435,17 +435,26 @@ class Client:
         except (ValueError, TypeError) as exc:
             raise self._unexpected(response, f"malformed solve result: {exc}") from exc
 
-    def default_problem(self) -> Problem:
+    def default_problem(self, *, deadline: Optional[float] = None) -> Problem:
         """Fetch the seed scenario with every field expanded (``GET /problems/default``).
 
         Edit it and pass it to :meth:`solve`; ``problem.to_dict()`` gives the
         JSON document.
 
+        Args:
+            deadline: Seconds this call may take in all (at most 1e9),
+                retries and the waits between them included, as for
+                :meth:`solve`.
+
         Raises:
             ApiError: for an error answer.
-            requests.RequestException: transport failures.
+            requests.Timeout: an attempt ran out of time, or ``deadline``
+                left none for one.
+            requests.RequestException: other transport failures.
+            ValueError: ``deadline`` is not a positive number of seconds.
         """
-        response, _ = self._request("GET", "/problems/default")
+        deadline_at = _deadline_at(deadline)
+        response, _ = self._request("GET", "/problems/default", deadline_at=deadline_at)
         data = self._json(response)
         try:
             return Problem.from_dict(data)
