@@ -22,8 +22,11 @@
 //! planar quadrotor's pattern (11 of 36 entries of `A`, 6 of 12 of `B`) a
 //! seed solve runs 27% fewer instructions than when the zeros are found at
 //! run time (BENCHMARKS.md). A pattern is a promise: an entry
-//! outside it that is not zero is treated as zero, and the solve is wrong.
-//! `None`, the default, makes no promise.
+//! outside it that is not zero is treated as zero, and the solve is wrong
+//! (a debug build asserts it). `None`, the default, makes no promise. The
+//! pattern is an associated constant, so that the solver is compiled for
+//! it; that makes both traits unusable as `dyn` objects, which the solver,
+//! generic over its dynamics, never needed.
 
 use nalgebra::{SMatrix, SVector};
 
