@@ -2,7 +2,7 @@
 //! and what was expected, and nothing panics.
 
 use ilqr_service::problem::{
-    Limits, MAX_CONTROL, MAX_OBJECTS, MAX_OBSTACLES, ParseError, ProblemSpec, parse,
+    FieldError, Limits, MAX_CONTROL, MAX_OBJECTS, MAX_OBSTACLES, ParseError, ProblemSpec, parse,
 };
 use ilqr_service::solve::solve;
 use proptest::prelude::*;
@@ -22,6 +22,15 @@ fn errors(doc: &Value) -> Vec<String> {
             Ok(()) => vec![],
             Err(invalid) => invalid.errors.into_iter().map(|e| e.pointer).collect(),
         },
+    }
+}
+
+/// The first error of a document that must fail to parse with shape
+/// errors (a wrong value somewhere, not a syntax error).
+fn first_error(doc: &[u8]) -> FieldError {
+    match parse(doc) {
+        Err(ParseError::Shape(s)) => s.first().clone(),
+        other => panic!("{}: {other:?}", String::from_utf8_lossy(doc)),
     }
 }
 
@@ -89,20 +98,14 @@ fn out_of_range_numbers_are_rejected() {
             "/obstacles/1/center/1",
         ),
     ] {
-        match parse(doc) {
-            Err(ParseError::Shape(s)) => {
-                let f = s.first().clone();
-                assert_eq!(f.pointer, pointer);
-                assert!(
-                    f.detail.starts_with(
-                        "number out of range: JSON numbers here must fit a 64-bit float"
-                    ),
-                    "{}",
-                    f.detail
-                );
-            }
-            other => panic!("{other:?}"),
-        }
+        let f = first_error(doc);
+        assert_eq!(f.pointer, pointer);
+        assert!(
+            f.detail
+                .starts_with("number out of range: JSON numbers here must fit a 64-bit float"),
+            "{}",
+            f.detail
+        );
     }
     // In a count field the message is the field's own: an integer, and
     // which ones, not "a 64-bit float".
@@ -123,19 +126,14 @@ fn out_of_range_numbers_are_rejected() {
             "a positive integer (ms",
         ),
     ] {
-        match parse(doc) {
-            Err(ParseError::Shape(s)) => {
-                let f = s.first().clone();
-                assert_eq!(f.pointer, pointer);
-                assert!(
-                    f.detail
-                        .starts_with(&format!("number out of range: expected {expected}")),
-                    "{}",
-                    f.detail
-                );
-            }
-            other => panic!("{other:?}"),
-        }
+        let f = first_error(doc);
+        assert_eq!(f.pointer, pointer);
+        assert!(
+            f.detail
+                .starts_with(&format!("number out of range: expected {expected}")),
+            "{}",
+            f.detail
+        );
     }
     // A syntax error anywhere still makes it a syntax error, with the
     // syntax error's own message (not the number's).
@@ -246,12 +244,9 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
 /// "expected a finite number" (a review's cases).
 #[test]
 fn a_bare_nan_is_told_what_is_known_of_its_place() {
-    let told = |doc: &[u8]| match parse(doc) {
-        Err(ParseError::Shape(s)) => {
-            let f = s.first().clone();
-            (f.pointer, f.detail)
-        }
-        other => panic!("{}: {other:?}", String::from_utf8_lossy(doc)),
+    let told = |doc: &[u8]| {
+        let f = first_error(doc);
+        (f.pointer, f.detail)
     };
     for (doc, pointer, above) in [
         (
@@ -343,14 +338,9 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     // A document that is not an object is wrong at its root, deep or not.
     let root = "[".repeat(200) + &"]".repeat(200);
     for doc in [root.as_bytes(), b"[1e999]", b"1e999", br#""\ud800""#] {
-        match parse(doc) {
-            Err(ParseError::Shape(s)) => {
-                let f = s.first().clone();
-                assert_eq!(f.pointer, "");
-                assert!(f.detail.ends_with("expected a JSON object"), "{}", f.detail);
-            }
-            other => panic!("{other:?}"),
-        }
+        let f = first_error(doc);
+        assert_eq!(f.pointer, "");
+        assert!(f.detail.ends_with("expected a JSON object"), "{}", f.detail);
     }
 }
 

@@ -6,7 +6,9 @@ solve; every other solve then gets ``503 overloaded`` with ``Retry-After: 1``.
 
 from __future__ import annotations
 
+import contextlib
 import logging
+import socket
 import time
 from pathlib import Path
 from typing import Callable, Iterator, List
@@ -23,6 +25,16 @@ from conftest import (
 from ilqr_client import Client, OverloadedError, ShuttingDownError
 
 SMALL = {"horizon": 20, "output": {"gains": False, "trace": False}}
+
+
+@contextlib.contextmanager
+def silent_server() -> Iterator[str]:
+    """The URL of a socket that listens and never answers: the kernel
+    completes connections from its backlog, and nobody reads them."""
+    with socket.socket() as silent:
+        silent.bind(("127.0.0.1", 0))
+        silent.listen(4)
+        yield f"http://127.0.0.1:{silent.getsockname()[1]}"
 
 
 @pytest.fixture(scope="module")
@@ -126,12 +138,7 @@ def test_connection_failures_are_retried_with_backoff(monkeypatch: pytest.Monkey
 def test_a_probe_of_a_service_that_does_not_answer_gives_up_on_its_own_timeout() -> None:
     # The kernel completes the connection from the listen backlog, and
     # nobody ever answers: the probe waited the client's solve timeout (30 s).
-    import socket
-
-    with socket.socket() as silent:
-        silent.bind(("127.0.0.1", 0))
-        silent.listen(4)
-        url = f"http://127.0.0.1:{silent.getsockname()[1]}"
+    with silent_server() as url:
         with Client(url, timeout=30) as client:
             started = time.monotonic()
             assert client.health(timeout=0.2) is False
@@ -232,14 +239,10 @@ def test_a_deadline_stops_retrying_where_the_wait_would_pass_it(
 def test_a_deadline_cuts_the_read_timeout_and_the_connection_backoff(
     monkeypatch: pytest.MonkeyPatch,
 ) -> None:
-    import socket
-
     # Connected, never answered: the read timeout (30 s) is cut to the
     # deadline.
-    with socket.socket() as silent:
-        silent.bind(("127.0.0.1", 0))
-        silent.listen(4)
-        with Client(f"http://127.0.0.1:{silent.getsockname()[1]}", timeout=30) as client:
+    with silent_server() as url:
+        with Client(url, timeout=30) as client:
             started = time.monotonic()
             with pytest.raises(requests.Timeout):
                 client.solve({}, deadline=0.3)
@@ -259,7 +262,6 @@ def test_a_deadline_cuts_the_read_timeout_and_the_connection_backoff(
 
 
 def test_a_deadline_bounds_a_slow_connect_and_the_read_together() -> None:
-    import socket
     import threading
 
     # The accept queue is full, so the client's SYN is dropped and sent
@@ -321,14 +323,10 @@ def test_a_deadline_must_be_a_positive_number_of_seconds(deadline: object) -> No
 
 
 def test_a_deadline_bounds_fetching_the_default_problem(single_worker: ServiceProcess) -> None:
-    import socket
-
     # Connected, never answered: without a deadline the client's 30 s read
     # timeout would apply.
-    with socket.socket() as silent:
-        silent.bind(("127.0.0.1", 0))
-        silent.listen(4)
-        with Client(f"http://127.0.0.1:{silent.getsockname()[1]}", timeout=30) as client:
+    with silent_server() as url:
+        with Client(url, timeout=30) as client:
             started = time.monotonic()
             with pytest.raises(requests.Timeout):
                 client.default_problem(deadline=0.3)

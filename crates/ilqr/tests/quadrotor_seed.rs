@@ -1209,7 +1209,7 @@ fn the_stated_sparsity_changes_no_number() {
             second_order,
             ..Options::default()
         };
-        assert!(<Seed as HasDynamics>::Dynamics::SPARSITY.is_some());
+        assert!(<ilqr::Euler<ilqr::Quadrotor2D> as DiscreteDynamics<6, 2>>::SPARSITY.is_some());
         let (stated, s) = solve_with(&options);
         let seed = seed_problem(100, 0.05);
         let problem = ilqr::Problem {
@@ -1237,13 +1237,4 @@ fn the_stated_sparsity_changes_no_number() {
         };
         assert_eq!(model(stated.trace()), model(unstated.trace()));
     }
-}
-
-/// Names the dynamics type of a problem type.
-trait HasDynamics {
-    type Dynamics;
-}
-
-impl<D, C, const NX: usize> HasDynamics for ilqr::Problem<D, C, NX> {
-    type Dynamics = D;
 }
