@@ -143,6 +143,9 @@ const BODIES: [Body; 2] = [Body::Lean, Body::Full];
 
 /// What the handler does with a body, start to finish (no network, no
 /// queue): parse, validate, solve, serialise. Returns the response size.
+/// Never inlined, so that `bench/instructions.sh` can count inside it
+/// (`--toggle-collect=http_path::handle`).
+#[inline(never)]
 fn handle(body: &[u8], cancel: &AtomicBool) -> usize {
     let spec = parse(body).expect("the body parses");
     spec.validate(&Limits::default())
