@@ -2,14 +2,18 @@
 # HTTP load test of the release binary on loopback, with wrk, against the
 # in-process ceiling measured in the same run.
 #
-#   bash bench/load.sh                   # about 3.5 minutes
-#   ROUNDS=6 DURATION=20 bash bench/load.sh
+#   bash bench/load.sh                   # about 4 minutes
+#   ROUNDS=8 DURATION=20 bash bench/load.sh
 #
 # Everything goes to 127.0.0.1 only; every run is bounded in time; the
 # server is killed on exit (trap), whatever happens.
 #
-# 1. Saturation, ROUNDS times (default 4), alternating so that both sides
-#    see the same machine load:
+# 1. Saturation, ROUNDS times (default 6, of DURATION = 8 s each),
+#    alternating so that both sides see the same machine load (short
+#    rounds pair better: this host's speed drifts within a minute, and with
+#    two 10 s rounds the same binary's in-process CPU per full request came
+#    out at 0.660-0.673 ms in one run and 0.714-0.763 ms in the next,
+#    against a fixed instruction count, bench/instructions.sh):
 #    a. in-process: `HTTP_PATH_THROUGHPUT_SECS=$DURATION HTTP_PATH_THREADS=2
 #       cargo bench --bench http_path`: 2 threads run parse + validate +
 #       solve + serialise back to back (benches/http_path.rs), requests/s
@@ -21,8 +25,8 @@
 #       The script does not count statuses here (see bench/post_seed.lua:
 #       a Lua `response` callback costs wrk 10-20 us per answer on the same
 #       cores); wrk's own tally of statuses >= 400 gives the 200s.
-#    Then the same FULL_ROUNDS times (default 2) for the `full` body (gains
-#    and trace in the answer).
+#    Then the same FULL_ROUNDS times (default 4, of FULL_DURATION = 8 s) for
+#    the `full` body (gains and trace in the answer).
 #    The server's RSS after the first lean round and after the last full
 #    one says whether memory grows with solves served (/metrics is never
 #    scraped here).
@@ -41,10 +45,10 @@
 set -euo pipefail
 
 cd "$(git -C "$(dirname "$0")" rev-parse --show-toplevel)"
-ROUNDS="${ROUNDS:-4}"
-DURATION="${DURATION:-12}"
-FULL_DURATION="${FULL_DURATION:-10}"
-FULL_ROUNDS="${FULL_ROUNDS:-2}"
+ROUNDS="${ROUNDS:-6}"
+DURATION="${DURATION:-8}"
+FULL_DURATION="${FULL_DURATION:-8}"
+FULL_ROUNDS="${FULL_ROUNDS:-4}"
 OVERLOAD_DURATION="${OVERLOAD_DURATION:-20}"
 CONNS="${CONNS:-8}"
 OVERLOAD_CONNS="${OVERLOAD_CONNS:-16}"
