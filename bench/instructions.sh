@@ -38,11 +38,7 @@ command -v callgrind_control >/dev/null || { echo "needs callgrind_control (valg
 
 tmp="$(mktemp -d)"
 SERVER_PID=""
-cleanup() {
-    if [[ -n "$SERVER_PID" ]]; then kill -KILL "$SERVER_PID" 2>/dev/null || true; fi
-    rm -rf "$tmp"
-}
-trap cleanup EXIT
+trap kill_server_and_tmp EXIT
 trap 'exit 130' INT TERM
 
 echo "building: cargo build --release --bin ilqr-service; cargo bench --bench http_path --no-run" >&2
@@ -79,17 +75,8 @@ PORT="$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0))
 valgrind --tool=callgrind --callgrind-out-file="$tmp/srv.out" --separate-threads=yes \
     "$BIN" serve --bind "127.0.0.1:$PORT" --workers 1 >"$tmp/srv.log" 2>&1 &
 SERVER_PID=$!
-up=""
-for _ in $(seq 600); do # valgrind starts slowly: up to 60 s
-    if "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then up=1; break; fi
-    kill -0 "$SERVER_PID" 2>/dev/null || break
-    sleep 0.1
-done
-if [[ -z "$up" ]]; then
-    echo "the server did not come up under valgrind; its log:" >&2
-    cat "$tmp/srv.log" >&2
-    exit 1
-fi
+# valgrind starts slowly: up to 60 s.
+wait_healthy "$BIN" "$PORT" "$SERVER_PID" "$tmp/srv.log" 600 || exit 1
 
 post() { # body count
     python3 - "$PORT" "$1" "$2" <<'EOF'

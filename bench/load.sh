@@ -91,14 +91,7 @@ start_server() { # queue capacity
     "$BIN" serve --bind "127.0.0.1:$PORT" --workers 2 --queue-capacity "$1" \
         >"$tmp/server-q$1.log" 2>&1 &
     SERVER_PID=$!
-    for _ in $(seq 100); do
-        "$BIN" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null && return 0
-        kill -0 "$SERVER_PID" 2>/dev/null || break
-        sleep 0.1
-    done
-    echo "the server did not come up; its log:" >&2
-    cat "$tmp/server-q$1.log" >&2
-    exit 1
+    wait_healthy "$BIN" "$PORT" "$SERVER_PID" "$tmp/server-q$1.log" || exit 1
 }
 
 stop_server() {

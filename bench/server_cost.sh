@@ -29,11 +29,7 @@ BODY="${BODY:-lean}"
 BIN="$(target_dir)/release/ilqr-service" # honours CARGO_TARGET_DIR
 tmp="$(mktemp -d)"
 SERVER_PID=""
-cleanup() {
-    if [[ -n "$SERVER_PID" ]]; then kill -KILL "$SERVER_PID" 2>/dev/null || true; fi
-    rm -rf "$tmp"
-}
-trap cleanup EXIT
+trap kill_server_and_tmp EXIT
 
 command -v wrk >/dev/null || { echo "needs wrk (apt-get install wrk)" >&2; exit 1; }
 [[ -x /usr/bin/time ]] || { echo "needs /usr/bin/time (apt-get install time)" >&2; exit 1; }
@@ -50,17 +46,7 @@ for round in $(seq "$ROUNDS"); do
     env "$@" "$BIN" serve --bind "127.0.0.1:$port" --workers 2 --queue-capacity 64 \
         >"$tmp/server.log" 2>&1 &
     SERVER_PID=$!
-    up=""
-    for _ in $(seq 100); do
-        if "$BIN" healthcheck --addr "127.0.0.1:$port" 2>/dev/null; then up=1; break; fi
-        kill -0 "$SERVER_PID" 2>/dev/null || break
-        sleep 0.1
-    done
-    if [[ -z "$up" ]]; then
-        echo "the server did not come up; its log:" >&2
-        cat "$tmp/server.log" >&2
-        exit 1
-    fi
+    wait_healthy "$BIN" "$port" "$SERVER_PID" "$tmp/server.log" || exit 1
     wrk -t2 -c8 -d2s -s bench/post_seed.lua "$url" -- "$BODY" >/dev/null
     read -r u0 s0 f0 < <(awk '{ print $14, $15, $10 }' /proc/"$SERVER_PID"/stat)
     read -r v0 n0 < <(switches "$SERVER_PID")

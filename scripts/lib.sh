@@ -1,4 +1,5 @@
-# Sourced by scripts/test.sh and scripts/browser_check.sh.
+# Sourced by scripts/test.sh, scripts/browser_check.sh and the bench/*.sh
+# scripts.
 
 # The cargo target directory of this checkout: honours CARGO_TARGET_DIR
 # (a stale ./target must not be tested instead).
@@ -41,4 +42,29 @@ stop_server() {
     wait "$SERVER" 2>/dev/null || true
     SERVER=""
   fi
+}
+
+#   wait_healthy BIN PORT PID LOG [TENTHS]
+# waits until `BIN healthcheck` reaches 127.0.0.1:PORT, for up to TENTHS
+# tenths of a second (default 100) and only while process PID lives (a
+# server that exits at once is not waited for); otherwise prints LOG to
+# stderr and returns 1. For bench scripts that start the server their own
+# way (under valgrind, say) rather than with start_server.
+wait_healthy() {
+  local bin=$1 port=$2 pid=$3 log=$4 tries=${5:-100}
+  for _ in $(seq "$tries"); do
+    "$bin" healthcheck --addr "127.0.0.1:$port" 2>/dev/null && return 0
+    kill -0 "$pid" 2>/dev/null || break
+    sleep 0.1
+  done
+  echo "the server did not come up; its log:" >&2
+  cat "$log" >&2
+  return 1
+}
+
+# An EXIT trap for bench scripts: kills SERVER_PID (if set) at once and
+# removes the scratch directory $tmp.
+kill_server_and_tmp() {
+  if [ -n "${SERVER_PID:-}" ]; then kill -KILL "$SERVER_PID" 2>/dev/null || true; fi
+  rm -rf "${tmp:?}"
 }
