@@ -6,8 +6,9 @@
 # epoll, futex, context switches) and how fast the instructions run (cache
 # misses after a preemption, a host taking the core away) are not in them.
 #
-#   bash bench/instructions.sh            # about 2 minutes
+#   bash bench/instructions.sh            # about a minute
 #   REQUESTS=50 bash bench/instructions.sh
+#   bash bench/instructions.sh RUST_LOG=warn   # env for the server (step 3)
 #
 # 1. The seed solve: `ilqr-service solve` (no file: the default problem)
 #    under callgrind, counting inside `ilqr_service::solve::solve` only
@@ -72,7 +73,7 @@ for body in lean full; do
 done
 
 PORT="$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
-valgrind --tool=callgrind --callgrind-out-file="$tmp/srv.out" --separate-threads=yes \
+env "$@" valgrind --tool=callgrind --callgrind-out-file="$tmp/srv.out" --separate-threads=yes \
     "$BIN" serve --bind "127.0.0.1:$PORT" --workers 1 >"$tmp/srv.log" 2>&1 &
 SERVER_PID=$!
 # valgrind starts slowly: up to 60 s.
