@@ -64,13 +64,7 @@ CHILD=""
 cleanup() {
     if [[ -n "$CHILD" ]]; then kill "$CHILD" 2>/dev/null || true; fi
     if [[ -n "$SAMPLER_PID" ]]; then kill "$SAMPLER_PID" 2>/dev/null || true; fi
-    if [[ -n "$SERVER_PID" ]]; then
-        kill -TERM "$SERVER_PID" 2>/dev/null || true
-        # Bounded: SIGKILL if it has not drained within 5 s.
-        for _ in $(seq 50); do kill -0 "$SERVER_PID" 2>/dev/null || break; sleep 0.1; done
-        kill -KILL "$SERVER_PID" 2>/dev/null || true
-    fi
-    rm -rf "$tmp"
+    kill_server_and_tmp # SIGTERM, SIGKILL after 5 s (scripts/lib.sh)
 }
 trap cleanup EXIT
 trap 'exit 130' INT TERM

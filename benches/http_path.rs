@@ -19,7 +19,9 @@
 //!
 //! With `HTTP_PATH_THROUGHPUT_SECS` set, the binary does not run divan but
 //! measures requests per second over a fixed time on `HTTP_PATH_THREADS`
-//! threads (see [`throughput`]); `bench/load.sh` uses that mode.
+//! threads (see [`throughput`]); `bench/load.sh` uses that mode. With
+//! `HTTP_PATH_COUNT` set it runs a fixed number of requests after a warm-up
+//! (see [`count`]), for `bench/instructions.sh`.
 //!
 //! Each stage runs on two bodies: `lean` = `{"output":{"gains":false,"trace":false}}`
 //! (what `bench/load.sh` posts by default) and `full` = `{}` (the seed with
@@ -36,9 +38,45 @@ use ilqr_service::solve::{SolveResult, solve};
 static ALLOC: AllocProfiler = AllocProfiler::system();
 
 fn main() {
+    if let Ok(n) = std::env::var("HTTP_PATH_COUNT") {
+        return count(&n);
+    }
     match std::env::var("HTTP_PATH_THROUGHPUT_SECS") {
         Ok(secs) => throughput(&secs),
         Err(_) => divan::main(),
+    }
+}
+
+/// `HTTP_PATH_BODY`: `lean` (the default) or `full`.
+fn body_from_env() -> Body {
+    match std::env::var("HTTP_PATH_BODY").as_deref() {
+        Ok("full") => Body::Full,
+        Ok("lean") | Err(_) => Body::Lean,
+        Ok(other) => panic!("HTTP_PATH_BODY is lean or full, not {other}"),
+    }
+}
+
+/// Count mode, for `bench/instructions.sh`: 5 warm-up requests on this
+/// thread (the first builds the thread's solver workspace, as a server
+/// worker's first request does), then `n` more inside [`measured`], the
+/// one function whose instructions the script counts (callgrind
+/// `--toggle-collect`), so the figure per request does not depend on how
+/// many requests a timed run happened to finish.
+fn count(n: &str) {
+    let n: usize = n.parse().expect("HTTP_PATH_COUNT is a count");
+    let body = body_from_env();
+    let cancel = AtomicBool::new(false);
+    for _ in 0..5 {
+        black_box(handle(black_box(body.bytes()), &cancel));
+    }
+    measured(body, n, &cancel);
+    println!("COUNT body={body:?} requests={n}");
+}
+
+#[inline(never)]
+fn measured(body: Body, n: usize, cancel: &AtomicBool) {
+    for _ in 0..n {
+        black_box(handle(black_box(body.bytes()), cancel));
     }
 }
 
@@ -59,11 +97,7 @@ fn throughput(secs: &str) {
     let secs: f64 = secs.parse().expect("HTTP_PATH_THROUGHPUT_SECS is a number");
     let threads: usize = std::env::var("HTTP_PATH_THREADS")
         .map_or(2, |t| t.parse().expect("HTTP_PATH_THREADS is a count"));
-    let body = match std::env::var("HTTP_PATH_BODY").as_deref() {
-        Ok("full") => Body::Full,
-        Ok("lean") | Err(_) => Body::Lean,
-        Ok(other) => panic!("HTTP_PATH_BODY is lean or full, not {other}"),
-    };
+    let body = body_from_env();
     let done = AtomicUsize::new(0);
     let cpu_start = process_cpu_seconds();
     let start = Instant::now();
@@ -143,9 +177,6 @@ const BODIES: [Body; 2] = [Body::Lean, Body::Full];
 
 /// What the handler does with a body, start to finish (no network, no
 /// queue): parse, validate, solve, serialise. Returns the response size.
-/// Never inlined, so that `bench/instructions.sh` can count inside it
-/// (`--toggle-collect=http_path::handle`).
-#[inline(never)]
 fn handle(body: &[u8], cancel: &AtomicBool) -> usize {
     let spec = parse(body).expect("the body parses");
     spec.validate(&Limits::default())

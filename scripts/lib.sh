@@ -45,8 +45,8 @@ stop_server() {
 }
 
 #   wait_healthy BIN PORT PID LOG [TENTHS]
-# waits until `BIN healthcheck` reaches 127.0.0.1:PORT, for up to TENTHS
-# tenths of a second (default 100) and only while process PID lives (a
+# waits until `BIN healthcheck` reaches 127.0.0.1:PORT, trying TENTHS
+# times (default 100) 0.1 s apart and only while process PID lives (a
 # server that exits at once is not waited for); otherwise prints LOG to
 # stderr and returns 1. For bench scripts that start the server their own
 # way (under valgrind, say) rather than with start_server.
@@ -62,9 +62,15 @@ wait_healthy() {
   return 1
 }
 
-# An EXIT trap for bench scripts: kills SERVER_PID (if set) at once and
-# removes the scratch directory $tmp.
+# An EXIT trap for bench scripts. It reads two globals of the script: it
+# stops the server whose PID is in SERVER_PID, if set (SIGTERM, so that it
+# drains and a valgrind under it cleans up; SIGKILL if it is still there
+# after 5 s), then removes the scratch directory $tmp, if set.
 kill_server_and_tmp() {
-  if [ -n "${SERVER_PID:-}" ]; then kill -KILL "$SERVER_PID" 2>/dev/null || true; fi
-  rm -rf "${tmp:?}"
+  if [ -n "${SERVER_PID:-}" ]; then
+    kill -TERM "$SERVER_PID" 2>/dev/null || true
+    for _ in $(seq 50); do kill -0 "$SERVER_PID" 2>/dev/null || break; sleep 0.1; done
+    kill -KILL "$SERVER_PID" 2>/dev/null || true
+  fi
+  if [ -n "${tmp:-}" ]; then rm -rf "$tmp"; fi
 }
