@@ -9,11 +9,11 @@
 # server is killed on exit (trap), whatever happens.
 #
 # 1. Saturation, ROUNDS times (default 6, of DURATION = 8 s each),
-#    alternating so that both sides see the same machine load (short
-#    rounds pair better: this host's speed drifts within a minute, and with
-#    two 10 s rounds the same binary's in-process CPU per full request came
-#    out at 0.660-0.673 ms in one run and 0.714-0.763 ms in the next,
-#    against a fixed instruction count, bench/instructions.sh):
+#    alternating so that both sides see the same machine load. (Until
+#    2026-12-02: 4 x 12 s, and 2 x 10 s full. This host's speed drifts
+#    within a minute, and with two full rounds one odd minute moved the
+#    full figure by several points; more, shorter rounds give more samples
+#    of the drift in about the same time, not less drift.)
 #    a. in-process: `HTTP_PATH_THROUGHPUT_SECS=$DURATION HTTP_PATH_THREADS=2
 #       cargo bench --bench http_path`: 2 threads run parse + validate +
 #       solve + serialise back to back (benches/http_path.rs), requests/s
