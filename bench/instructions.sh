@@ -99,7 +99,7 @@ for body in lean full; do
     inproc[$body]=$(($(total "$tmp/inproc-$body.out") / REQUESTS))
 done
 
-PORT="$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+PORT="$(free_port)"
 env "$@" valgrind --tool=callgrind --callgrind-out-file="$tmp/srv.out" --separate-threads=yes \
     "$BIN" serve --bind "127.0.0.1:$PORT" --workers 1 >"$tmp/srv.log" 2>&1 &
 SERVER_PID=$!

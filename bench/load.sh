@@ -78,7 +78,7 @@ echo "building: cargo build --release --bin ilqr-service; cargo bench --bench ht
 cargo build --release --quiet --bin ilqr-service
 cargo bench --bench http_path --no-run --quiet 2>/dev/null
 
-PORT="${PORT:-$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')}"
+PORT="${PORT:-$(free_port)}"
 URL="http://127.0.0.1:$PORT/solve"
 
 start_server() { # queue capacity

@@ -41,7 +41,7 @@ switches() { # voluntary and involuntary context switches over all threads
 }
 
 for round in $(seq "$ROUNDS"); do
-    port="$(python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')"
+    port="$(free_port)"
     url="http://127.0.0.1:$port/solve"
     env "$@" "$BIN" serve --bind "127.0.0.1:$port" --workers 2 --queue-capacity 64 \
         >"$tmp/server.log" 2>&1 &

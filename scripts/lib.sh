@@ -15,18 +15,13 @@ target_dir() {
 # binds, the server exits and another port is tried (three tries). Returns
 # 1, with the server's log printed, if it never became healthy.
 start_server() {
-  local bin=$1 log=$2 healthy=""
+  local bin=$1 log=$2
   shift 2
   for _ in 1 2 3; do
-    PORT=$(python3 -c 'import socket; s=socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])')
+    PORT=$(free_port)
     "$bin" serve --bind "127.0.0.1:$PORT" "$@" >"$log" 2>&1 &
     SERVER=$!
-    for _ in $(seq 100); do
-      if "$bin" healthcheck --addr "127.0.0.1:$PORT" 2>/dev/null; then healthy=1; break; fi
-      kill -0 "$SERVER" 2>/dev/null || break
-      sleep 0.1
-    done
-    [ -n "$healthy" ] && return 0
+    poll_healthy "$bin" "$PORT" "$SERVER" && return 0
     kill "$SERVER" 2>/dev/null || true
     wait "$SERVER" 2>/dev/null || true
   done
@@ -44,21 +39,34 @@ stop_server() {
   fi
 }
 
-#   wait_healthy BIN PORT PID LOG [TENTHS]
-# waits until `BIN healthcheck` reaches 127.0.0.1:PORT, trying TENTHS
-# times (default 100) 0.1 s apart and only while process PID lives (a
-# server that exits at once is not waited for); otherwise prints LOG to
-# stderr and returns 1. For bench scripts that start the server their own
-# way (under valgrind, say) rather than with start_server.
-wait_healthy() {
-  local bin=$1 port=$2 pid=$3 log=$4 tries=${5:-100}
+# A TCP port on 127.0.0.1 that was free when asked (another process may
+# take it before the caller binds it).
+free_port() {
+  python3 -c 'import socket; s = socket.socket(); s.bind(("127.0.0.1", 0)); print(s.getsockname()[1])'
+}
+
+#   poll_healthy BIN PORT PID [TRIES]
+# returns 0 as soon as `BIN healthcheck` reaches 127.0.0.1:PORT, trying
+# TRIES times (default 100) 0.1 s apart and only while process PID lives (a
+# server that exits at once is not waited for); 1 otherwise, silently.
+poll_healthy() {
+  local bin=$1 port=$2 pid=$3 tries=${4:-100}
   for _ in $(seq "$tries"); do
     "$bin" healthcheck --addr "127.0.0.1:$port" 2>/dev/null && return 0
     kill -0 "$pid" 2>/dev/null || break
     sleep 0.1
   done
+  return 1
+}
+
+#   wait_healthy BIN PORT PID LOG [TRIES]
+# poll_healthy, printing LOG to stderr when the server never answered. For
+# bench scripts that start the server their own way (under valgrind, say)
+# rather than with start_server.
+wait_healthy() {
+  poll_healthy "$1" "$2" "$3" "${5:-100}" && return 0
   echo "the server did not come up; its log:" >&2
-  cat "$log" >&2
+  cat "$4" >&2
   return 1
 }
 
