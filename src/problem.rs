@@ -201,9 +201,18 @@ pub struct Obstacle {
     /// Centre `[x, y]` in m.
     #[schema(schema_with = schema::obstacle_center)]
     pub center: [f64; 2],
-    /// Weight q (cost units, from 0 to 1e12).
-    #[schema(minimum = 0.0, maximum = 1e12)]
+    /// Weight q (cost units, from 0 to 1e12). Default 1000, the seed
+    /// obstacle's. The centre has no default: an obstacle is where it is.
+    #[serde(default = "default_obstacle_weight")]
+    #[schema(default = 1000.0, minimum = 0.0, maximum = 1e12)]
     pub weight: f64,
+}
+
+/// The seed obstacle's weight, also what an obstacle without one gets.
+const SEED_OBSTACLE_WEIGHT: f64 = 1000.0;
+
+fn default_obstacle_weight() -> f64 {
+    SEED_OBSTACLE_WEIGHT
 }
 
 /// When to stop.
@@ -276,7 +285,7 @@ impl Default for ProblemSpec {
             weights: Weights::default(),
             obstacles: vec![Obstacle {
                 center: [4.5, 4.5],
-                weight: 1000.0,
+                weight: SEED_OBSTACLE_WEIGHT,
             }],
             initial_controls: None,
             solver: SolverSpec::default(),

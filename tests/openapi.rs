@@ -137,6 +137,21 @@ fn the_spec_states_the_validated_ranges() {
     assert_eq!(num(&obstacle["center"]["items"]["maximum"]), MAX_STATE);
 }
 
+/// An obstacle's weight defaults to the seed obstacle's, and the spec says
+/// so; its centre is the one required member of any problem object.
+#[test]
+fn an_obstacle_requires_its_center_only_and_states_the_weights_default() {
+    let spec: serde_json::Value =
+        serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
+    let obstacle = &spec["components"]["schemas"]["Obstacle"];
+    assert_eq!(obstacle["required"], serde_json::json!(["center"]));
+    let seed = serde_json::to_value(ilqr_service::problem::ProblemSpec::default()).unwrap();
+    assert_eq!(
+        obstacle["properties"]["weight"]["default"],
+        seed["obstacles"][0]["weight"]
+    );
+}
+
 /// Every `default` the spec states is the value an omitted field takes (the
 /// serialised `ProblemSpec::default()`), and every field of the problem
 /// that has a default states it.

@@ -70,6 +70,24 @@ fn the_empty_document_is_the_seed_problem() {
 }
 
 #[test]
+fn an_obstacle_without_a_weight_gets_the_seed_obstacles() {
+    // The seed problem spelled with its obstacle's weight left out.
+    assert_eq!(
+        parse(br#"{"obstacles": [{"center": [4.5, 4.5]}]}"#).unwrap(),
+        ProblemSpec::default()
+    );
+    let two =
+        parse(br#"{"obstacles": [{"center": [1, 2]}, {"center": [3, 4], "weight": 5}]}"#).unwrap();
+    let weights: Vec<f64> = two.obstacles.iter().map(|o| o.weight).collect();
+    assert_eq!(weights, [1000.0, 5.0]);
+    // A null weight is a wrong type, as a null number is everywhere else.
+    rejects(
+        json!({"obstacles": [{"center": [1, 2], "weight": null}]}),
+        "/obstacles/0/weight",
+    );
+}
+
+#[test]
 fn non_positive_physical_parameters_are_rejected() {
     for field in ["mass", "inertia", "arm_length"] {
         for bad in [json!(0.0), json!(-1.0)] {
@@ -544,10 +562,7 @@ fn wrong_types_and_unknown_fields_are_rejected() {
     rejects(json!({"solver": {"method": "newton"}}), "/solver/method");
     rejects(json!({"solver": {"method": null}}), "/solver/method");
     assert!(errors(&json!({"solver": {"method": "ddp"}})).is_empty());
-    rejects(
-        json!({"obstacles": [{"center": [1, 1]}]}),
-        "/obstacles/0/weight",
-    );
+    rejects(json!({"obstacles": [{"weight": 1}]}), "/obstacles/0/center");
     rejects(
         json!({"solver": {"tolerance": "small"}}),
         "/solver/tolerance",

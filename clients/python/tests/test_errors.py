@@ -48,7 +48,7 @@ from ilqr_client.models import to_json_value
             id="several",
         ),
         pytest.param(Problem(extra={"bogus": True}), ["/bogus"], id="dataclass-extra"),
-        pytest.param({"obstacles": [{"center": [1, 1]}]}, ["/obstacles/0/weight"], id="missing-field"),
+        pytest.param({"obstacles": [{"weight": 1}]}, ["/obstacles/0/center"], id="missing-field"),
         pytest.param({"horizon": "x"}, ["/horizon"], id="not-an-integer"),
         pytest.param(
             {"dt": "x", "horizon": "y", "weights": {"state": [1, 1, -1, 1, 1, 1]}},
@@ -201,10 +201,13 @@ def test_nan_is_refused_before_sending_with_its_pointer(client: Client) -> None:
 
 def test_a_problem_document_missing_a_required_member_names_it() -> None:
     # It was a TypeError from the dataclass's constructor, with no pointer;
-    # posted as a dict, the service names /obstacles/1/weight.
-    document = {"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}, {"center": [1.0, 2.0]}]}
-    with pytest.raises(ValueError, match=r"^/obstacles/1: missing member 'weight'$"):
+    # posted as a dict, the service names /obstacles/1/center.
+    document = {"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}, {"weight": 5.0}]}
+    with pytest.raises(ValueError, match=r"^/obstacles/1: missing member 'center'$"):
         Problem.from_dict(document)
+    # The weight has a default (the service's 1000), so it may be left out.
+    assert Problem.from_dict({"obstacles": [{"center": [1.0, 2.0]}]}).obstacles == [Obstacle(center=[1.0, 2.0])]
+    assert Obstacle(center=[1.0, 2.0]).to_dict() == {"center": [1.0, 2.0]}
     with pytest.raises(ValueError, match=r"^/obstacles: expected an array"):
         Problem.from_dict({"obstacles": {"center": [1.0, 2.0], "weight": 5.0}})
     assert Problem.from_dict({"obstacles": [{"center": [1.0, 2.0], "weight": 5.0}]}).obstacles == [

@@ -59,6 +59,12 @@ def test_plot_solution_draws_obstacle_circles(seed_result: SolveResult, figure: 
     assert {"trajectory", "start", "end", "goal", "obstacle", "closest approach"} <= set(labels)
 
 
+def test_plot_solution_labels_an_obstacle_without_a_weight_with_the_default(seed_result: SolveResult, figure: Any) -> None:
+    ax = figure.subplots()
+    plot_solution(seed_result, {"obstacles": [{"center": [4.5, 4.5]}]}, ax=ax)
+    assert [text.get_text() for text in ax.texts] == ["q=1000"]
+
+
 def test_plot_cost_is_log_scale(seed_result: SolveResult, figure: Any) -> None:
     ax = plot_cost(seed_result, ax=figure.subplots())
     assert ax.get_yscale() == "log"

@@ -363,17 +363,18 @@ class Obstacle(_FieldsOnly):
     """A soft obstacle: adds ``weight·exp(−‖p − center‖)`` to every stage cost.
 
     Attributes:
-        center: ``[x, y]`` in m, each of magnitude ≤ 1e6.
-        weight: Weight q in [0, 1e12] (cost units).
+        center: ``[x, y]`` in m, each of magnitude ≤ 1e6. Required.
+        weight: Weight q in [0, 1e12] (cost units). Service default 1000,
+            the seed obstacle's.
         extra: Members this client does not know; sent as they are.
     """
 
     center: Floats
-    weight: float
+    weight: Optional[float] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
-        """The JSON object for this obstacle."""
+        """The JSON object for this obstacle, without a ``None`` weight."""
         return _spec_to_dict(self)
 
     @classmethod
@@ -381,7 +382,7 @@ class Obstacle(_FieldsOnly):
         """Build from the JSON object at ``where``.
 
         Raises:
-            ValueError: if ``center`` or ``weight`` is missing.
+            ValueError: if ``center`` is missing.
         """
         known, extra = _split_known(cls, data, where)
         return _build(cls, known, extra, where)

@@ -78,7 +78,9 @@ def _goal_and_obstacles(
     for obstacle in raw_obstacles:
         if not isinstance(obstacle, Mapping):  # an Obstacle dataclass
             obstacle = obstacle.to_dict()
-        obstacles.append((obstacle["center"], float(obstacle["weight"])))
+        weight = obstacle.get("weight")
+        # The service's default for an obstacle that gives none.
+        obstacles.append((obstacle["center"], _SEED_OBSTACLES[0][1] if weight is None else float(weight)))
     return goal, obstacles
 
 
