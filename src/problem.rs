@@ -544,8 +544,9 @@ impl From<FieldError> for Invalid {
 #[derive(Debug, Clone, PartialEq, Default)]
 struct Checker {
     found: Invalid,
-    /// Members taken out of the document as wrong shapes: no error is
-    /// reported at or under them (they hold defaults now).
+    /// Members taken out of the document as wrong shapes, and values stood
+    /// in for: no error is reported at or under them (they hold defaults
+    /// or stand-ins now).
     skip: Vec<String>,
     /// Keys given twice, already reported: no second error at exactly
     /// these pointers (the values under them are checked as usual). Only
@@ -997,10 +998,11 @@ impl Shapes {
 /// a `serde_json::Value` would silently keep the last.
 ///
 /// Every wrong shape is listed, not just the first: after each one the
-/// member holding it is taken out of the document (its nearest enclosing
-/// object member: an error inside an array element takes out the whole
-/// array, and a bad `center` or `weight` of an obstacle, which the
-/// obstacle needs, the obstacles) and the document is read again. Each
+/// document is read again without it. Inside one of the problem's arrays
+/// a valid stand-in takes its place (`stand_in`), so the array's
+/// other elements are still checked; anywhere else the member holding it
+/// (its nearest enclosing object member) is taken out and reads as its
+/// default. Each
 /// read covers the whole document, so their number is bounded by
 /// [`MAX_REPORTED_ERRORS`] and by [`RETRY_BYTES`]: a document of up to
 /// 10 KiB gets 100 reads, one of 100 KiB 10, one over 1 MiB a single
@@ -1060,9 +1062,11 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
             }
             Err(e) => shape_error(e),
         };
-        // A member taken out before and now missing: take out the member
-        // above it instead (an obstacle without its `center` cannot be
-        // read, so the obstacles go), without a second error.
+        // Under a member taken out or stood in for before: a required
+        // member taken out and now missing, or a stand-in that does not
+        // fit (neither happens with today's schema, whose one required
+        // member, an obstacle's `center`, is stood in for). Take out, or
+        // stand in for, the value above it instead, without a second error.
         let from = match shapes
             .skip
             .iter()
@@ -1074,6 +1078,10 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
                 error.pointer
             }
         };
+        if stand_in(&mut value, &from) {
+            shapes.skip.push(from);
+            continue;
+        }
         match take_out(&mut value, &from) {
             Some(member) => shapes.skip.push(member),
             // The root itself is wrong: there is nothing else to check.
@@ -1239,6 +1247,54 @@ fn take_out(value: &mut serde_json::Value, pointer: &str) -> Option<String> {
         at = up;
     }
     None
+}
+
+/// Puts a valid value in place of the wrong shape at `pointer` when it lies
+/// in one of the problem's arrays (a vector's number, an obstacle, its
+/// `center` or a number in it, a row of `initial_controls` or a number in
+/// it), so that the array's other elements are still read and checked:
+/// [`take_out`] would take out the object member above it, the whole
+/// array. The stand-ins (0, `[0, 0]`, an obstacle at the origin) are inside
+/// every range, and the caller adds `pointer` to the skipped ones, so they
+/// are never reported. Whether it did; elsewhere the member is taken out.
+fn stand_in(value: &mut serde_json::Value, pointer: &str) -> bool {
+    use serde_json::{Value, json};
+    let index = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
+    let tokens: Vec<&str> = pointer.split('/').skip(1).collect();
+    let with = match tokens.as_slice() {
+        ["initial_state" | "goal_state", i] | ["weights", "state" | "control" | "terminal", i]
+            if index(i) =>
+        {
+            json!(0.0)
+        }
+        ["obstacles", i, "center", j] | ["initial_controls", i, j] if index(i) && index(j) => {
+            json!(0.0)
+        }
+        ["obstacles", i, "center"] if index(i) => json!([0.0, 0.0]),
+        ["initial_controls", i] if index(i) => json!([0.0, 0.0]),
+        ["obstacles", i] if index(i) => json!({"center": [0.0, 0.0]}),
+        _ => return false,
+    };
+    let up = parent(pointer);
+    let last = &pointer[up.len() + 1..];
+    match value.pointer_mut(up) {
+        // An element: replaced (an array is never grown).
+        Some(Value::Array(items)) if index(last) => {
+            match last.parse::<usize>().ok().and_then(|i| items.get_mut(i)) {
+                Some(slot) => {
+                    *slot = with;
+                    true
+                }
+                None => false,
+            }
+        }
+        // An obstacle's `center`, wrong or missing: set.
+        Some(Value::Object(members)) if !index(last) => {
+            members.insert(unescape_token(last), with);
+            true
+        }
+        _ => false,
+    }
 }
 
 /// The pointer of the value that holds the one at `pointer` (`""` for a

@@ -1079,13 +1079,67 @@ fn every_wrong_shape_is_listed_with_the_range_errors_of_the_rest() {
             other => panic!("{body}: {other:?}"),
         }
     }
-    // A wrong type in an obstacle's center takes out the center; the
-    // obstacle then lacks one, which is not a second error: the obstacles
-    // go, and the rest is still checked.
+    // A wrong shape inside an array is stood in for, so the array's other
+    // elements are still read and checked: every wrong value in it is
+    // listed, wrong shapes first, then the rest's ranges in schema order.
     assert_eq!(
         errors(&json!({"obstacles": [{"center": [1, "a"]}, {"weight": -1}], "dt": -1})),
-        ["/obstacles/0/center/1", "/dt"]
+        [
+            "/obstacles/0/center/1",
+            "/obstacles/1/center",
+            "/dt",
+            "/obstacles/1/weight"
+        ]
     );
+    for (doc, pointers) in [
+        (
+            json!({"obstacles": [{"center": [1, 2], "weight": -5}, {"center": "x", "weight": 1}]}),
+            &["/obstacles/1/center", "/obstacles/0/weight"][..],
+        ),
+        (
+            json!({"obstacles": ["x", {"center": [1e7, 0]}, [], {"center": [1, 2, 3]}]}),
+            &[
+                "/obstacles/0",
+                "/obstacles/2",
+                "/obstacles/3/center",
+                "/obstacles/1/center/0",
+            ],
+        ),
+        (
+            json!({"weights": {"state": [1, "x", -1, 1, 1, 1], "control": [null, -1]}}),
+            // Wrong shapes in key order, as everywhere.
+            &[
+                "/weights/control/0",
+                "/weights/state/1",
+                "/weights/state/2",
+                "/weights/control/1",
+            ],
+        ),
+        (
+            json!({"initial_state": [1, 2, "3", 4, 5, 1e7], "goal_state": [true, 0, 0, 0, 0, 0]}),
+            &["/goal_state/0", "/initial_state/2", "/initial_state/5"],
+        ),
+        // A row of the wrong shape keeps its place, so the rows are still
+        // counted against the horizon and the others' values checked.
+        (
+            json!({"horizon": 3, "initial_controls": [[1, 1], [1, 2, 3], [1e13, "u"]]}),
+            &[
+                "/initial_controls/1",
+                "/initial_controls/2/1",
+                "/initial_controls/2/0",
+            ],
+        ),
+        (
+            json!({"horizon": 4, "initial_controls": [[1, 1], "x", [1e13, 0]]}),
+            &[
+                "/initial_controls/1",
+                "/initial_controls",
+                "/initial_controls/2/0",
+            ],
+        ),
+    ] {
+        assert_eq!(errors(&doc), pointers, "{doc}");
+    }
 }
 
 #[test]
