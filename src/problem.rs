@@ -526,8 +526,9 @@ pub struct Invalid {
     /// [`MAX_REPORTED_ERRORS`] of them, or [`MAX_REPORTED_BYTES`]).
     pub unlisted: usize,
     /// The document was not checked to its end: [`parse`]'s budget for
-    /// reading it again after wrong shapes ran out, so values it did not
-    /// reach may be invalid too, uncounted.
+    /// reading it again after wrong shapes ran out (or it took out an
+    /// array unchecked to stay within it), so values it did not reach may
+    /// be invalid too, uncounted.
     pub incomplete: bool,
 }
 
@@ -1006,8 +1007,9 @@ impl Shapes {
 /// read covers the whole document, so their number is bounded by
 /// [`MAX_REPORTED_ERRORS`] and by [`RETRY_BYTES`]: a document of up to
 /// 10 KiB gets 100 reads, one of 100 KiB 10, one over 1 MiB a single
-/// read. When they run out with wrong shapes left, the list is marked
-/// [`Invalid::incomplete`].
+/// read. When they run out with wrong shapes left, or the fix before the
+/// last read took out an array a stand-in would have kept, the list is
+/// marked [`Invalid::incomplete`].
 ///
 /// A leading UTF-8 byte order mark is skipped.
 ///
@@ -1046,7 +1048,9 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     .map_err(|e| unreadable(bytes, skipped, &path, e))?;
     let reads = (RETRY_BYTES / bytes.len().max(1)).clamp(1, MAX_REPORTED_ERRORS);
     let mut incomplete = true;
-    for _ in 0..reads {
+    // An array taken out where a stand-in would have gone (see below).
+    let mut cut_short = false;
+    for read in 0..reads {
         // Through `ObjectOnly` like every nested struct: serde alone would
         // take an array for the document too.
         let error = match serde_path_to_error::deserialize::<_, ProblemSpec>(ObjectOnly {
@@ -1055,6 +1059,7 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         }) {
             Ok(spec) if shapes.found.errors.is_empty() => return Ok(spec),
             Ok(spec) => {
+                shapes.found.incomplete = cut_short;
                 return Err(ParseError::Shape(Box::new(Shapes {
                     checker: shapes,
                     rest: Some(spec),
@@ -1078,9 +1083,19 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
                 error.pointer
             }
         };
-        if stand_in(&mut value, &from) {
-            shapes.skip.push(from);
-            continue;
+        // A stand-in fixes one element per read, taking out the array all
+        // of them: so the fix before the last read takes out, and that
+        // read can still check the rest's ranges (a large document with
+        // many bad rows has few reads; standing in to the end, it had its
+        // range errors elsewhere unreported). The array's other elements
+        // are then unchecked, and the list says so.
+        if read + 2 < reads {
+            if stand_in(&mut value, &from) {
+                shapes.skip.push(from);
+                continue;
+            }
+        } else if stand_in_for(&from).is_some() {
+            cut_short = true;
         }
         match take_out(&mut value, &from) {
             Some(member) => shapes.skip.push(member),
@@ -1258,28 +1273,15 @@ fn take_out(value: &mut serde_json::Value, pointer: &str) -> Option<String> {
 /// every range, and the caller adds `pointer` to the skipped ones, so they
 /// are never reported. Whether it did; elsewhere the member is taken out.
 fn stand_in(value: &mut serde_json::Value, pointer: &str) -> bool {
-    use serde_json::{Value, json};
-    let index = |t: &str| !t.is_empty() && t.bytes().all(|b| b.is_ascii_digit());
-    let tokens: Vec<&str> = pointer.split('/').skip(1).collect();
-    let with = match tokens.as_slice() {
-        ["initial_state" | "goal_state", i] | ["weights", "state" | "control" | "terminal", i]
-            if index(i) =>
-        {
-            json!(0.0)
-        }
-        ["obstacles", i, "center", j] | ["initial_controls", i, j] if index(i) && index(j) => {
-            json!(0.0)
-        }
-        ["obstacles", i, "center"] if index(i) => json!([0.0, 0.0]),
-        ["initial_controls", i] if index(i) => json!([0.0, 0.0]),
-        ["obstacles", i] if index(i) => json!({"center": [0.0, 0.0]}),
-        _ => return false,
+    use serde_json::Value;
+    let Some(with) = stand_in_for(pointer) else {
+        return false;
     };
     let up = parent(pointer);
     let last = &pointer[up.len() + 1..];
     match value.pointer_mut(up) {
         // An element: replaced (an array is never grown).
-        Some(Value::Array(items)) if index(last) => {
+        Some(Value::Array(items)) if is_index(last) => {
             match last.parse::<usize>().ok().and_then(|i| items.get_mut(i)) {
                 Some(slot) => {
                     *slot = with;
@@ -1289,12 +1291,40 @@ fn stand_in(value: &mut serde_json::Value, pointer: &str) -> bool {
             }
         }
         // An obstacle's `center`, wrong or missing: set.
-        Some(Value::Object(members)) if !index(last) => {
+        Some(Value::Object(members)) if !is_index(last) => {
             members.insert(unescape_token(last), with);
             true
         }
         _ => false,
     }
+}
+
+/// Whether a pointer token is an array index.
+fn is_index(token: &str) -> bool {
+    !token.is_empty() && token.bytes().all(|b| b.is_ascii_digit())
+}
+
+/// The stand-in for the value at `pointer`, if it is in one of the
+/// problem's arrays ([`stand_in`]).
+fn stand_in_for(pointer: &str) -> Option<serde_json::Value> {
+    use serde_json::json;
+    let tokens: Vec<&str> = pointer.split('/').skip(1).collect();
+    Some(match tokens.as_slice() {
+        ["initial_state" | "goal_state", i] | ["weights", "state" | "control" | "terminal", i]
+            if is_index(i) =>
+        {
+            json!(0.0)
+        }
+        ["obstacles", i, "center", j] | ["initial_controls", i, j]
+            if is_index(i) && is_index(j) =>
+        {
+            json!(0.0)
+        }
+        ["obstacles", i, "center"] if is_index(i) => json!([0.0, 0.0]),
+        ["initial_controls", i] if is_index(i) => json!([0.0, 0.0]),
+        ["obstacles", i] if is_index(i) => json!({"center": [0.0, 0.0]}),
+        _ => return None,
+    })
 }
 
 /// The pointer of the value that holds the one at `pointer` (`""` for a

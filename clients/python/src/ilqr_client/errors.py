@@ -57,7 +57,7 @@ class FieldError:
         pointer: RFC 6901 JSON pointer into the posted document, e.g.
             ``"/weights/state/2"``; ``""`` means the document as a whole. A
             missing required field is pointed at where it belongs
-            (``"/obstacles/0/weight"``), so the pointer may name a member
+            (``"/obstacles/0/center"``), so the pointer may name a member
             the document does not have.
         detail: What was wrong and what is expected.
     """

@@ -364,8 +364,10 @@ class Obstacle(_FieldsOnly):
 
     Attributes:
         center: ``[x, y]`` in m, each of magnitude ≤ 1e6. Required.
-        weight: Weight q in [0, 1e12] (cost units). Service default 1000,
-            the seed obstacle's.
+        weight: Weight q in [0, 1e12] (cost units). ``None`` is left out of
+            the request, and the service then uses 1000, the seed obstacle's;
+            so ``Obstacle(c)`` and ``Obstacle(c, 1000.0)`` pose the same
+            problem, though they compare unequal.
         extra: Members this client does not know; sent as they are.
     """
 
