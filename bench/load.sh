@@ -2,7 +2,7 @@
 # HTTP load test of the release binary on loopback, with wrk, against the
 # in-process ceiling measured in the same run.
 #
-#   bash bench/load.sh                   # about 4 minutes
+#   bash bench/load.sh                   # about 3 minutes (3:06 in run WW)
 #   ROUNDS=8 DURATION=20 bash bench/load.sh
 #
 # Everything goes to 127.0.0.1 only; every run is bounded in time; the

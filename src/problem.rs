@@ -1273,26 +1273,20 @@ fn take_out(value: &mut serde_json::Value, pointer: &str) -> Option<String> {
 /// every range, and the caller adds `pointer` to the skipped ones, so they
 /// are never reported. Whether it did; elsewhere the member is taken out.
 fn stand_in(value: &mut serde_json::Value, pointer: &str) -> bool {
-    use serde_json::Value;
     let Some(with) = stand_in_for(pointer) else {
         return false;
     };
+    // A wrong value, an element or a member: replaced where it is.
+    if let Some(slot) = value.pointer_mut(pointer) {
+        *slot = with;
+        return true;
+    }
+    // A missing one, an obstacle's `center`: set in its object. (A missing
+    // element is past the array's end, and an array is never grown.)
     let up = parent(pointer);
-    let last = &pointer[up.len() + 1..];
     match value.pointer_mut(up) {
-        // An element: replaced (an array is never grown).
-        Some(Value::Array(items)) if is_index(last) => {
-            match last.parse::<usize>().ok().and_then(|i| items.get_mut(i)) {
-                Some(slot) => {
-                    *slot = with;
-                    true
-                }
-                None => false,
-            }
-        }
-        // An obstacle's `center`, wrong or missing: set.
-        Some(Value::Object(members)) if !is_index(last) => {
-            members.insert(unescape_token(last), with);
+        Some(serde_json::Value::Object(members)) => {
+            members.insert(unescape_token(&pointer[up.len() + 1..]), with);
             true
         }
         _ => false,

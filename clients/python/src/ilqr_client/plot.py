@@ -31,7 +31,9 @@ __all__ = ["plot_solution", "plot_cost", "save_figure"]
 
 #: The seed scenario's goal and obstacles: what the service uses when a problem omits them.
 _SEED_GOAL_STATE: Tuple[float, ...] = (4.0, 9.0, 0.0, 0.0, 0.0, 0.0)
-_SEED_OBSTACLES: Tuple[Tuple[Tuple[float, float], float], ...] = (((4.5, 4.5), 1000.0),)
+# What the service gives an obstacle that sets no weight (the seed's).
+_DEFAULT_OBSTACLE_WEIGHT = 1000.0
+_SEED_OBSTACLES: Tuple[Tuple[Tuple[float, float], float], ...] = (((4.5, 4.5), _DEFAULT_OBSTACLE_WEIGHT),)
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -79,8 +81,7 @@ def _goal_and_obstacles(
         if not isinstance(obstacle, Mapping):  # an Obstacle dataclass
             obstacle = obstacle.to_dict()
         weight = obstacle.get("weight")
-        # The service's default for an obstacle that gives none.
-        obstacles.append((obstacle["center"], _SEED_OBSTACLES[0][1] if weight is None else float(weight)))
+        obstacles.append((obstacle["center"], _DEFAULT_OBSTACLE_WEIGHT if weight is None else float(weight)))
     return goal, obstacles
 
 
