@@ -8,12 +8,17 @@
 //! # Layout
 //!
 //! * [`dynamics`]: the [`ContinuousDynamics`] and [`DiscreteDynamics`] traits
-//!   and the explicit [`Euler`] integrator (eq. 9 of the seed paper) that turns
-//!   one into the other; optionally the dynamics' second derivatives
+//!   and the integrators that turn one into the other, explicit [`Euler`]
+//!   (eq. 9 of the seed paper) and [`Rk4`]; optionally the dynamics' second derivatives
 //!   ([`Curvature`]) for DDP and the Jacobians' pattern of zeros
 //!   ([`Sparsity`]), which the backward pass is compiled for.
+//! * [`model`]: the [`Model`] trait, what a model says about itself (state
+//!   and control names and units, parameters and their ranges, where its
+//!   position is) so that a service can offer it without knowing it.
 //! * [`quadrotor`]: the planar quadrotor of eqs. 4–6 with analytic Jacobians
 //!   (eq. 11) and curvature.
+//! * [`unicycle`]: the unicycle (kinematic car), `[x, y, θ]` driven by speed
+//!   and turn rate.
 //! * [`cost`]: the [`Cost`] trait the solver minimises, its quadratic model
 //!   ([`StageExpansion`], [`TerminalExpansion`]) and the terms of eqs. 13–15
 //!   ([`StateTracking`], [`ControlEffort`], [`ExpObstacle`], [`TerminalTracking`]),
@@ -59,16 +64,20 @@
 pub mod cost;
 pub mod dynamics;
 mod kernels;
+pub mod model;
 pub mod quadrotor;
 pub mod solver;
+pub mod unicycle;
 
 pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
     TerminalCost, TerminalExpansion, TerminalTracking,
 };
-pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler, Sparsity};
+pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler, Rk4, Sparsity};
+pub use model::{Model, Parameter, Quantity};
 pub use quadrotor::Quadrotor2D;
 pub use solver::{
     Options, Problem, RiccatiStep, SolveError, Solver, Status, Summary, TraceRow, Value,
     riccati_step,
 };
+pub use unicycle::Unicycle;

@@ -16,9 +16,10 @@
 use nalgebra::{SMatrix, SVector};
 
 use crate::dynamics::{ContinuousDynamics, Curvature, Sparsity};
+use crate::model::{Model, Parameter, Quantity};
 
-/// Physical parameters of the planar quadrotor. All must be positive and
-/// finite; `ilqr-service` validates that before building one.
+/// Physical parameters of the planar quadrotor. All must be finite, and
+/// all but gravity positive: [`Model::PARAMETERS`] gives the ranges.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct Quadrotor2D {
     /// Mass `m` in kg.
@@ -113,5 +114,98 @@ impl ContinuousDynamics<6, 2> for Quadrotor2D {
             ux,
             uu: SMatrix::zeros(),
         })
+    }
+}
+
+const fn quantity(name: &'static str, unit: &'static str, description: &'static str) -> Quantity {
+    Quantity {
+        name,
+        unit,
+        description,
+    }
+}
+
+/// Smallest mass, inertia and arm length: below it the accelerations of a
+/// bounded thrust no longer fit the state bounds a caller checks.
+const MIN_PARAMETER: f64 = 1e-6;
+/// Largest mass, inertia and arm length.
+const MAX_PARAMETER: f64 = 1e6;
+
+impl Model<6, 2> for Quadrotor2D {
+    const NAME: &'static str = "quadrotor_2d";
+    const DESCRIPTION: &'static str = "The planar quadrotor of the seed paper (eqs. 4–6): `x` \
+        right, `y` up, θ counter-clockwise from upright, `u1` the rotor at `+r` along the body's \
+        x axis: `m·ẍ = −(u1 + u2)·sin θ`, `m·ÿ = (u1 + u2)·cos θ − m·g`, `I·θ̈ = r·(u1 − u2)`.";
+    const STATE: [Quantity; 6] = [
+        quantity("x", "m", "position, right"),
+        quantity("y", "m", "position, up"),
+        quantity("θ", "rad", "attitude, counter-clockwise from upright"),
+        quantity("ẋ", "m/s", "velocity, right"),
+        quantity("ẏ", "m/s", "velocity, up"),
+        quantity("θ̇", "rad/s", "angular velocity"),
+    ];
+    const CONTROL: [Quantity; 2] = [
+        quantity(
+            "u1",
+            "N",
+            "thrust of the rotor at +r along the body's x axis",
+        ),
+        quantity("u2", "N", "thrust of the rotor at −r"),
+    ];
+    const PARAMETERS: &'static [Parameter] = &[
+        Parameter {
+            name: "mass",
+            unit: "kg",
+            description: "mass m",
+            default: 1.0,
+            minimum: MIN_PARAMETER,
+            maximum: MAX_PARAMETER,
+        },
+        Parameter {
+            name: "inertia",
+            unit: "kg·m²",
+            description: "moment of inertia I about the body axis",
+            default: 1.0,
+            minimum: MIN_PARAMETER,
+            maximum: MAX_PARAMETER,
+        },
+        Parameter {
+            name: "arm_length",
+            unit: "m",
+            description: "distance r from the centre to each rotor",
+            default: 1.0,
+            minimum: MIN_PARAMETER,
+            maximum: MAX_PARAMETER,
+        },
+        Parameter {
+            name: "gravity",
+            unit: "m/s²",
+            description: "gravitational acceleration g",
+            default: 9.81,
+            minimum: 0.0,
+            maximum: 1e4,
+        },
+    ];
+    const POSITION: (usize, usize) = (0, 1);
+
+    /// `[mass, inertia, arm_length, gravity]`.
+    fn from_parameters(values: &[f64]) -> Self {
+        let value = |i: usize| {
+            values
+                .get(i)
+                .copied()
+                .unwrap_or(Self::PARAMETERS[i].default)
+        };
+        Self {
+            mass: value(0),
+            inertia: value(1),
+            arm_length: value(2),
+            gravity: value(3),
+        }
+    }
+
+    /// Hover thrust on both rotors.
+    fn rest_controls(&self) -> SVector<f64, 2> {
+        SVector::repeat(self.hover_thrust())
     }
 }

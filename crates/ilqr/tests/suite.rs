@@ -10,6 +10,7 @@
 
 mod common;
 mod derivatives;
+mod integrators;
 mod interruption;
 mod linear_quadratic;
 mod optimality;
