@@ -619,7 +619,9 @@ fn six_places(x: f64) -> String {
 /// The human summary printed by `solve`.
 pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
     let mut s = format!(
-        "status           {}\niterations       {}\ncost             {} (initial {})\ngoal distance    {} m\n",
+        "model            {} ({})\nstatus           {}\niterations       {}\ncost             {} (initial {})\ngoal distance    {} m\n",
+        r.model,
+        r.integrator.as_str(),
         r.status.as_str(),
         r.iterations,
         six_places(r.cost),

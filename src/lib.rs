@@ -1,9 +1,11 @@
-//! `ilqr-service`: trajectory optimisation with iLQR for the planar
-//! quadrotor, as a CLI and an HTTP service.
+//! `ilqr-service`: trajectory optimisation with iLQR, as a CLI and an HTTP
+//! service.
 //!
 //! # Layout
 //!
-//! * [`problem`]: the problem document (JSON request), its seed-scenario
+//! * [`models`]: the models offered (the planar quadrotor, the unicycle),
+//!   each with its default problem; adding one is one entry there.
+//! * [`problem`]: the problem document (JSON request), its per-model
 //!   defaults and its validation with JSON pointers.
 //! * [`solve`]: builds the core problem from a document, runs the solver from
 //!   the `ilqr` crate and produces the [`solve::SolveResult`] document.
@@ -16,6 +18,7 @@
 //! nothing about JSON or HTTP.
 
 pub mod cli;
+pub mod models;
 pub mod problem;
 pub mod schema;
 pub mod server;

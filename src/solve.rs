@@ -2,23 +2,29 @@
 //! problem (model, integrator, cost terms), runs the solver and turns its
 //! output into the wire format. Shared by the CLI and the service.
 //!
-//! Each thread keeps the solver workspace of its last solve for the next one
-//! (up to horizon 1000, about 1.5 MB), so a service worker allocates only
-//! the answer's own vectors per request.
+//! The model is chosen at run time ([`crate::models`]), the solver is
+//! compiled per model and integrator: [`solve`] hands the problem to its
+//! model's entry, which calls [`solve_model`] with the model's type and
+//! dimensions.
+//!
+//! Each thread keeps the solver workspace of its last solve of each model
+//! for the next one (up to horizon 1000, about 1.5 MB for the quadrotor),
+//! so a service worker allocates only the answer's own vectors per request.
 
-use std::cell::Cell;
+use std::any::Any;
+use std::cell::RefCell;
 use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use ilqr::{
-    ControlEffort, Cost, DiscreteDynamics, Euler, ExpObstacle, Objective, Options, Problem,
-    Quadrotor2D, SolveError, Solver, StateTracking, TerminalTracking,
+    ControlEffort, Cost, DiscreteDynamics, Euler, ExpObstacle, Model, Objective, Options, Problem,
+    Rk4, SolveError, Solver, StateTracking, TerminalTracking,
 };
 use nalgebra::{SVector, Vector2};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::problem::{FieldError, Integrator, Method, ModelKind, ProblemSpec};
+use crate::problem::{FieldError, Integrator, Method, ProblemSpec};
 use crate::schema;
 
 /// How a solve ended. Every status is a successful answer carrying the best
@@ -86,12 +92,16 @@ impl From<ilqr::Status> for SolveStatus {
 /// The solution of a problem.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
 pub struct SolveResult {
+    /// The model solved for (`model.type` of the problem).
+    pub model: String,
+    /// The integrator the dynamics were discretised with.
+    pub integrator: Integrator,
     /// How the solve ended.
     pub status: SolveStatus,
     /// Final cost J: eqs. 13–15 of the paper summed over the horizon, with
-    /// no ½ factors. A weighted sum of squared errors in m², rad², (m/s)²,
-    /// (rad/s)² and N², plus the obstacle terms, so it has no single unit:
-    /// compare costs of one problem, not across weights.
+    /// no ½ factors. A weighted sum of squared errors in the squares of the
+    /// state's and controls' units, plus the obstacle terms, so it has no
+    /// single unit: compare costs of one problem, not across weights.
     pub cost: f64,
     /// Cost of the initial guess (the initial controls rolled out), same
     /// terms as `cost`.
@@ -102,16 +112,16 @@ pub struct SolveResult {
     pub goal_distance: f64,
     /// For each obstacle, the smallest distance (m) from its centre to the
     /// path: the straight segments between consecutive states' positions
-    /// (the path the model flies under explicit Euler), not only the states
-    /// themselves. The cost penalises the obstacle at the states only, so at
+    /// (the path the quadrotor flies under explicit Euler), not only the
+    /// states themselves. The cost penalises the obstacle at the states only, so at
     /// a coarse `dt` this can be much smaller than the distance at any state.
     pub closest_approach: Vec<f64>,
     /// The optimised states.
     #[schema(schema_with = schema::states)]
-    pub states: Vec<[f64; 6]>,
+    pub states: Rows,
     /// The optimised controls.
     #[schema(schema_with = schema::controls)]
-    pub controls: Vec<[f64; 2]>,
+    pub controls: Rows,
     /// The time-varying feedback policy. Absent when `output.gains` is
     /// false, and when no backward pass completed, so that there is no
     /// policy to give: a solve that ended (`time_limit` or `cancelled`, 0
@@ -160,10 +170,10 @@ pub struct SolveResult {
 pub struct Gains {
     /// `K_k`, see the schema description.
     #[schema(schema_with = schema::feedback)]
-    pub feedback: Vec<[[f64; 6]; 2]>,
+    pub feedback: Vec<Rows>,
     /// `d_k`, see the schema description.
     #[schema(schema_with = schema::feedforward)]
-    pub feedforward: Vec<[f64; 2]>,
+    pub feedforward: Rows,
     /// The regularisation μ of the backward pass that produced these gains
     /// (`Q_uu + μI` in place of `Q_uu`, in the cost's units per N²). 0: the
     /// undamped Riccati gains; larger values give smaller, more cautious `K`
@@ -237,7 +247,31 @@ pub fn solve(
     time_limit: Option<Duration>,
     cancel: &AtomicBool,
 ) -> Result<SolveResult, Unsolvable> {
-    let (problem, u_init) = build(spec);
+    match spec.model.served() {
+        Some(model) => model.solve(spec, time_limit, cancel),
+        None => Err(Unsolvable(FieldError {
+            pointer: "/model/type".into(),
+            detail: format!("unknown model: expected one of {}", crate::models::names()),
+        })),
+    }
+}
+
+/// [`solve`] for the model `M`: builds its problem in the solver's types
+/// and runs it with the problem's integrator.
+pub(crate) fn solve_model<M, const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    time_limit: Option<Duration>,
+    cancel: &AtomicBool,
+) -> Result<SolveResult, Unsolvable>
+where
+    M: Model<NX, NU> + 'static,
+{
+    let values: Vec<f64> = M::PARAMETERS
+        .iter()
+        .map(|p| spec.model.get(p.name).unwrap_or(p.default))
+        .collect();
+    let model = M::from_parameters(&values);
+    let u_init = initial_controls::<M, NX, NU>(spec, &model)?;
     let options = Options {
         max_iterations: spec.solver.max_iterations,
         tolerance: spec.solver.tolerance,
@@ -248,105 +282,140 @@ pub fn solve(
         second_order: spec.solver.method == Method::Ddp,
         ..Options::default()
     };
-
-    let cacheable = spec.horizon <= CACHED_HORIZON;
-    let mut solver = cacheable
-        .then(|| CACHED_SOLVER.take())
-        .flatten()
-        .unwrap_or_else(|| Solver::<6, 2>::new(spec.horizon));
-    let result = solve_on(&mut solver, spec, &problem, &u_init, &options, cancel);
-    if cacheable {
-        CACHED_SOLVER.set(Some(solver));
-    }
-    result
+    let cost = objective::<NX, NU>(spec, M::POSITION)?;
+    let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
+    let (dt, horizon) = (spec.dt, spec.horizon);
+    with_solver(horizon, |solver| match spec.integrator {
+        Integrator::Euler => {
+            let problem = Problem {
+                dynamics: Euler { model, dt },
+                cost,
+                x0,
+                horizon,
+            };
+            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, &options, cancel)
+        }
+        Integrator::Rk4 => {
+            let problem = Problem {
+                dynamics: Rk4 { model, dt },
+                cost,
+                x0,
+                horizon,
+            };
+            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, &options, cancel)
+        }
+    })
 }
 
-/// The problem `spec` describes, in the solver's types, and its
-/// initial controls (hover thrust unless given).
-fn build(
+/// The cost of eqs. 13–15: state tracking, control effort, terminal
+/// tracking, then one term per obstacle at the model's `position`.
+fn objective<const NX: usize, const NU: usize>(
     spec: &ProblemSpec,
-) -> (
-    Problem<Euler<Quadrotor2D>, Objective<6, 2>, 6>,
-    Vec<Vector2<f64>>,
-) {
-    let ModelKind::Quadrotor2d = spec.model.kind;
-    let Integrator::Euler = spec.integrator;
-    let model = Quadrotor2D {
-        mass: spec.model.mass,
-        inertia: spec.model.inertia,
-        arm_length: spec.model.arm_length,
-        gravity: spec.model.gravity,
-    };
-    let goal = SVector::from(spec.goal_state);
+    position: (usize, usize),
+) -> Result<Objective<NX, NU>, Unsolvable> {
+    let goal = vector::<NX>(&spec.goal_state, "/goal_state")?;
     let mut cost = Objective::new()
         .with_stage(StateTracking {
             goal,
-            weights: SVector::from(spec.weights.state),
+            weights: vector::<NX>(&spec.weights.state, "/weights/state")?,
         })
         .with_stage(ControlEffort {
-            weights: Vector2::from(spec.weights.control),
+            weights: vector::<NU>(&spec.weights.control, "/weights/control")?,
         })
         .with_terminal(TerminalTracking {
             goal,
-            weights: SVector::from(spec.weights.terminal),
+            weights: vector::<NX>(&spec.weights.terminal, "/weights/terminal")?,
         });
     for o in &spec.obstacles {
         cost = cost.with_stage(ExpObstacle {
             center: Vector2::from(o.center),
             weight: o.weight,
-            position: (0, 1),
+            position,
         });
     }
-    let problem = Problem {
-        dynamics: Euler { model, dt: spec.dt },
-        cost,
-        x0: SVector::from(spec.initial_state),
-        horizon: spec.horizon,
-    };
-    let u_init: Vec<Vector2<f64>> = match &spec.initial_controls {
-        Some(us) => us.iter().map(|u| Vector2::from(*u)).collect(),
-        None => vec![Vector2::repeat(model.hover_thrust()); spec.horizon],
-    };
-    (problem, u_init)
+    Ok(cost)
+}
+
+/// The initial guess: the given rows (`initial_controls` or the warm
+/// start's), or the model's rest controls at every step.
+fn initial_controls<M: Model<NX, NU>, const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    model: &M,
+) -> Result<Vec<SVector<f64, NU>>, Unsolvable> {
+    match spec.given_controls() {
+        Some(rows) => {
+            let at = if spec.initial_controls.is_some() {
+                "/initial_controls"
+            } else {
+                "/warm_start/controls"
+            };
+            rows.iter()
+                .enumerate()
+                .map(|(k, row)| vector::<NU>(row, &format!("{at}/{k}")))
+                .collect()
+        }
+        None => Ok(vec![model.rest_controls(); spec.horizon]),
+    }
+}
+
+/// `xs` as a vector of length `N`. Validation has checked the length; a
+/// problem that skipped it gets an error here, not a panic.
+fn vector<const N: usize>(xs: &[f64], pointer: &str) -> Result<SVector<f64, N>, Unsolvable> {
+    if xs.len() == N {
+        Ok(SVector::from_column_slice(xs))
+    } else {
+        Err(Unsolvable(FieldError {
+            pointer: pointer.to_owned(),
+            detail: format!("must have {N} entries, got {}", xs.len()),
+        }))
+    }
 }
 
 /// The solver's gains in the wire's layout (`feedback` row-major: row i is
-/// rotor i's gains over the six states), with what the summary says of
-/// them.
-fn wire_gains(solver: &Solver<6, 2>, summary: &ilqr::Summary) -> Gains {
+/// control i's gains over the states), with what the summary says of them.
+fn wire_gains<const NX: usize, const NU: usize>(
+    solver: &Solver<NX, NU>,
+    summary: &ilqr::Summary,
+) -> Gains {
     Gains {
         feedback: solver
             .feedback()
             .iter()
-            .map(|k| [k.row(0).transpose().into(), k.row(1).transpose().into()])
+            .map(|k| Rows::from_rows(NX, (0..NU).map(|i| k.row(i).transpose())))
             .collect(),
-        feedforward: solver.feedforward().iter().map(|d| (*d).into()).collect(),
+        feedforward: Rows::from_rows(NU, solver.feedforward().iter()),
         regularization: summary.gains_regularization,
         about_previous_iterate: summary.gains_about_previous_iterate,
     }
 }
 
 /// Run `solver` on the built problem and convert what it found.
-fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
-    solver: &mut Solver<6, 2>,
+fn solve_on<M, D, C, const NX: usize, const NU: usize>(
+    solver: &mut Solver<NX, NU>,
     spec: &ProblemSpec,
-    problem: &Problem<D, C, 6>,
-    u_init: &[Vector2<f64>],
+    problem: &Problem<D, C, NX>,
+    u_init: &[SVector<f64, NU>],
     options: &Options,
     cancel: &AtomicBool,
-) -> Result<SolveResult, Unsolvable> {
+) -> Result<SolveResult, Unsolvable>
+where
+    M: Model<NX, NU>,
+    D: DiscreteDynamics<NX, NU>,
+    C: Cost<NX, NU>,
+{
     let summary = solver
         .solve(problem, u_init, options, cancel)
         .map_err(|e| Unsolvable(field_error(e, spec)))?;
 
-    let states: Vec<[f64; 6]> = solver.states().iter().map(|x| (*x).into()).collect();
-    let position = |x: &[f64; 6], c: [f64; 2]| (x[0] - c[0]).hypot(x[1] - c[1]);
-    let last = states.last().copied().unwrap_or(spec.initial_state);
-    let goal_distance = position(&last, [spec.goal_state[0], spec.goal_state[1]]);
+    let states = Rows::from_rows(NX, solver.states().iter());
+    let (px, py) = M::POSITION;
+    let goal_distance = states.last().map_or(f64::NAN, |x| {
+        (x[px] - spec.goal_state[px]).hypot(x[py] - spec.goal_state[py])
+    });
     let closest_approach = spec
         .obstacles
         .iter()
-        .map(|o| closest_approach(&states, o.center))
+        .map(|o| closest_approach(&states, M::POSITION, o.center))
         .collect();
     // Zero gains from a solve whose first backward pass never completed
     // would read as a valid (open-loop) policy; leave them out instead.
@@ -369,6 +438,8 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
             .collect()
     });
     Ok(SolveResult {
+        model: M::NAME.to_owned(),
+        integrator: spec.integrator,
         status: summary.status.into(),
         cost: summary.cost,
         initial_cost: summary.initial_cost,
@@ -376,7 +447,7 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         goal_distance,
         closest_approach,
         states,
-        controls: solver.controls().iter().map(|u| (*u).into()).collect(),
+        controls: Rows::from_rows(NU, solver.controls().iter()),
         gains,
         trace,
         convexified_after_iteration: summary.convexified_after,
@@ -384,6 +455,137 @@ fn solve_on<D: DiscreteDynamics<6, 2>, C: Cost<6, 2>>(
         solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })
+}
+
+/// Rows of numbers of one width (states, controls, a gain matrix), stored
+/// flat: a JSON array of arrays on the wire, without an allocation per row.
+#[derive(Debug, Clone, Default, PartialEq)]
+pub struct Rows {
+    width: usize,
+    len: usize,
+    data: Vec<f64>,
+}
+
+impl Rows {
+    /// Rows of `width` numbers from an iterator of rows (each must have
+    /// `width` numbers; a longer one is cut, a shorter one padded with NaN).
+    pub fn from_rows<R, T>(width: usize, rows: R) -> Self
+    where
+        R: IntoIterator<Item = T>,
+        T: AsRef<[f64]>,
+    {
+        let mut out = Self {
+            width,
+            len: 0,
+            data: Vec::new(),
+        };
+        for row in rows {
+            let row = row.as_ref();
+            out.data
+                .extend((0..width).map(|i| row.get(i).copied().unwrap_or(f64::NAN)));
+            out.len += 1;
+        }
+        out
+    }
+
+    /// The number of rows.
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    /// Whether there are no rows.
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    /// The numbers in a row.
+    pub fn width(&self) -> usize {
+        self.width
+    }
+
+    /// The rows, in order.
+    pub fn iter(&self) -> impl ExactSizeIterator<Item = &[f64]> + '_ {
+        (0..self.len).map(move |k| &self[k])
+    }
+
+    /// The last row.
+    pub fn last(&self) -> Option<&[f64]> {
+        self.len.checked_sub(1).map(|k| &self[k])
+    }
+
+    /// Every number, row after row.
+    pub fn flat(&self) -> &[f64] {
+        &self.data
+    }
+}
+
+impl<'a> IntoIterator for &'a Rows {
+    type Item = &'a [f64];
+    type IntoIter = Box<dyn ExactSizeIterator<Item = &'a [f64]> + 'a>;
+
+    fn into_iter(self) -> Self::IntoIter {
+        Box::new(self.iter())
+    }
+}
+
+impl std::ops::Index<usize> for Rows {
+    type Output = [f64];
+
+    fn index(&self, k: usize) -> &[f64] {
+        &self.data[k * self.width..(k + 1) * self.width]
+    }
+}
+
+impl Serialize for Rows {
+    fn serialize<S: serde::Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_seq(self.iter())
+    }
+}
+
+/// From an array of arrays of one length.
+impl<'de> Deserialize<'de> for Rows {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        let rows = Vec::<Vec<f64>>::deserialize(d)?;
+        let width = rows.first().map_or(0, Vec::len);
+        if let Some(k) = rows.iter().position(|r| r.len() != width) {
+            return Err(serde::de::Error::custom(format_args!(
+                "row {k} has {} numbers, row 0 has {width}",
+                rows[k].len()
+            )));
+        }
+        Ok(Self::from_rows(width, rows))
+    }
+}
+
+/// Each thread's solvers of its last solves, one per dimensions: the
+/// workspace kept for the next solve. A fresh workspace for the seed
+/// problem is ~146 kB allocated and zeroed per solve, and glibc returns
+/// such blocks to the kernel when they are freed, so every solve would
+/// also pay page faults and TLB shootdowns. The solver resizes its
+/// buffers to each problem's horizon (keeping their capacity), and a
+/// panicking solve simply drops it.
+fn with_solver<const NX: usize, const NU: usize, T>(
+    horizon: usize,
+    run: impl FnOnce(&mut Solver<NX, NU>) -> T,
+) -> T {
+    thread_local! {
+        static CACHED: RefCell<Vec<Box<dyn Any>>> = const { RefCell::new(Vec::new()) };
+    }
+    let cacheable = horizon <= CACHED_HORIZON;
+    let cached = cacheable
+        .then(|| {
+            CACHED.with_borrow_mut(|cache| {
+                let at = cache.iter().position(|s| s.is::<Solver<NX, NU>>())?;
+                cache.swap_remove(at).downcast::<Solver<NX, NU>>().ok()
+            })
+        })
+        .flatten();
+    let mut solver = cached.unwrap_or_else(|| Box::new(Solver::<NX, NU>::new(horizon)));
+    let out = run(&mut solver);
+    if cacheable {
+        CACHED.with_borrow_mut(|cache| cache.push(solver));
+    }
+    out
 }
 
 /// A duration in milliseconds, as the nearest double to its whole
@@ -399,25 +601,18 @@ pub fn millis(d: Duration) -> f64 {
 /// allocate their own; next to their solve time that costs nothing.
 const CACHED_HORIZON: usize = 1000;
 
-thread_local! {
-    /// The solver this thread used last, kept for its next solve. A fresh
-    /// workspace for the seed problem is ~146 kB allocated and zeroed per
-    /// solve, and glibc returns such blocks to the kernel when they are
-    /// freed, so every solve also paid page faults and TLB shootdowns. The
-    /// solver resizes its buffers to each problem's horizon (keeping their
-    /// capacity), and a panicking solve simply drops it.
-    static CACHED_SOLVER: Cell<Option<Solver<6, 2>>> = const { Cell::new(None) };
-}
-
 impl SolveResult {
     /// The result as compact JSON, in a buffer sized for it up front (a
     /// seed result is 16–50 kB; growing a small buffer by doubling copies
     /// it several times).
     pub fn to_json(&self) -> serde_json::Result<Vec<u8>> {
         // ~20 bytes per number on the wire; 24 leaves room without waste.
-        let numbers = self.states.len() * 6
-            + self.controls.len() * 2
-            + self.gains.as_ref().map_or(0, |g| g.feedback.len() * 14)
+        let numbers = self.states.flat().len()
+            + self.controls.flat().len()
+            + self.gains.as_ref().map_or(0, |g| {
+                g.feedback.iter().map(|k| k.flat().len()).sum::<usize>()
+                    + g.feedforward.flat().len()
+            })
             + self.trace.as_ref().map_or(0, |t| t.len() * 8)
             + self.closest_approach.len();
         let mut buf = Vec::with_capacity(24 * numbers + 512);
@@ -428,12 +623,13 @@ impl SolveResult {
 
 /// The smallest distance (m) from `center` to the path through the
 /// states' positions, taken as straight segments between knots. Under
-/// explicit Euler that is the path itself (the position moves with the
-/// constant velocity `v_k` during step k); the knots alone can miss a close
-/// pass: at `dt = 1` the seed's path passes 0.2 m from the centre between
-/// two knots that are both 3.4 m away. The cost, like the paper's, sees
-/// only the knots.
-fn closest_approach(states: &[[f64; 6]], center: [f64; 2]) -> f64 {
+/// explicit Euler that is the quadrotor's path itself (the position moves
+/// with the constant velocity `v_k` during step k); the knots alone can
+/// miss a close pass: at `dt = 1` the seed's path passes 0.2 m from the
+/// centre between two knots that are both 3.4 m away. The cost, like the
+/// paper's, sees only the knots. `position` says which state entries are
+/// the position.
+fn closest_approach(states: &Rows, position: (usize, usize), center: [f64; 2]) -> f64 {
     // Squared distances pick the nearest point, and `hypot` (about 20 ns,
     // five times the rest of a segment's work) runs once, on it: at
     // N = 10000 with 100 obstacles the million calls took about 13 ms per
@@ -443,7 +639,7 @@ fn closest_approach(states: &[[f64; 6]], center: [f64; 2]) -> f64 {
     // below any distance that matters.)
     let mut best = f64::INFINITY;
     let mut nearest = None;
-    for_each_nearest_point(states, center, |a, b| {
+    for_each_nearest_point(states, position, center, |a, b| {
         let d2 = a * a + b * b;
         if d2 < best {
             best = d2;
@@ -454,22 +650,33 @@ fn closest_approach(states: &[[f64; 6]], center: [f64; 2]) -> f64 {
         return a.hypot(b);
     }
     let mut best = f64::INFINITY;
-    for_each_nearest_point(states, center, |a, b| best = best.min(a.hypot(b)));
+    for_each_nearest_point(states, position, center, |a, b| {
+        best = best.min(a.hypot(b));
+    });
     best
 }
 
 /// Calls `f` with the offset from `center` of the first state's position,
 /// then of each segment's point nearest `center`.
-fn for_each_nearest_point(states: &[[f64; 6]], center: [f64; 2], mut f: impl FnMut(f64, f64)) {
-    let at = |x: &[f64; 6]| (x[0] - center[0], x[1] - center[1]);
-    if let Some(x) = states.first() {
-        let (a, b) = at(x);
-        f(a, b);
-    }
-    for pair in states.windows(2) {
+fn for_each_nearest_point(
+    states: &Rows,
+    (px, py): (usize, usize),
+    center: [f64; 2],
+    mut f: impl FnMut(f64, f64),
+) {
+    let at = |x: &[f64]| (x[px] - center[0], x[py] - center[1]);
+    let mut rows = states.iter();
+    let Some(first) = rows.next() else {
+        return;
+    };
+    let (a, b) = at(first);
+    f(a, b);
+    let mut previous = first;
+    for next in rows {
         // Relative to the centre: p0 and the segment d = p1 − p0.
-        let (x0, y0) = at(&pair[0]);
-        let (x1, y1) = at(&pair[1]);
+        let (x0, y0) = at(previous);
+        let (x1, y1) = at(next);
+        previous = next;
         let (dx, dy) = (x1 - x0, y1 - y0);
         let len2 = dx * dx + dy * dy;
         // The segment's point nearest the centre, t in [0, 1]. A segment of
@@ -532,7 +739,15 @@ mod tests {
     #[test]
     fn wire_gains_pass_on_what_the_summary_says_and_k_row_major() {
         // The seed problem, as a request of `{}` builds it.
-        let (problem, u_init) = build(&ProblemSpec::default());
+        let spec = ProblemSpec::default();
+        let model = ilqr::Quadrotor2D::from_parameters(&[1.0, 1.0, 1.0, 9.81]);
+        let problem = Problem {
+            dynamics: Euler { model, dt: spec.dt },
+            cost: objective::<6, 2>(&spec, (0, 1)).unwrap(),
+            x0: vector::<6>(&spec.initial_state, "").unwrap(),
+            horizon: spec.horizon,
+        };
+        let u_init = initial_controls::<ilqr::Quadrotor2D, 6, 2>(&spec, &model).unwrap();
         let mut solver = Solver::<6, 2>::new(problem.horizon);
         let mut summary = solver
             .solve(
@@ -570,13 +785,15 @@ mod tests {
     #[test]
     fn closest_approach_survives_overflowing_squares() {
         let at = |x: f64, y: f64| [x, y, 0.0, 0.0, 0.0, 0.0];
-        let far = [at(1e200, 0.0), at(1e200, 3e200)];
-        assert_eq!(super::closest_approach(&far, [0.0, 0.0]), 1e200);
-        let mixed = [at(3.0, 4.0), at(3.0, 4.0), at(1e200, 1e200)];
-        assert_eq!(super::closest_approach(&mixed, [0.0, 0.0]), 5.0);
+        let path = |points: &[[f64; 6]]| Rows::from_rows(6, points);
+        let ca = |points: &[[f64; 6]]| super::closest_approach(&path(points), (0, 1), [0.0, 0.0]);
+        assert_eq!(ca(&[at(1e200, 0.0), at(1e200, 3e200)]), 1e200);
+        assert_eq!(ca(&[at(3.0, 4.0), at(3.0, 4.0), at(1e200, 1e200)]), 5.0);
         // The nearest point of a segment, not only its ends.
-        let line = [at(-1.0, 2.0), at(1.0, 2.0)];
-        assert_eq!(super::closest_approach(&line, [0.0, 0.0]), 2.0);
-        assert_eq!(super::closest_approach(&[], [0.0, 0.0]), f64::INFINITY);
+        assert_eq!(ca(&[at(-1.0, 2.0), at(1.0, 2.0)]), 2.0);
+        assert_eq!(ca(&[]), f64::INFINITY);
+        // The position is where the model says, not always entries 0 and 1.
+        let swapped = Rows::from_rows(3, [[7.0, 3.0, 4.0]]);
+        assert_eq!(super::closest_approach(&swapped, (2, 1), [0.0, 0.0]), 5.0);
     }
 }

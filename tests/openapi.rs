@@ -81,35 +81,70 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
         ilqr_service::server::Config::default().max_time_limit_ms
     );
     let problem = &spec["components"]["schemas"]["ProblemSpec"];
-    assert_eq!(problem["properties"]["initial_state"]["minItems"], 6);
-    assert_eq!(problem["properties"]["initial_state"]["maxItems"], 6);
     assert_eq!(problem["additionalProperties"], false);
     assert!(problem.get("required").is_none(), "every field is optional");
+    // A vector's length is its model's: the description names each
+    // model's components, from the registry.
+    for m in &ilqr_service::models::MODELS {
+        let described = problem["properties"]["initial_state"]["description"]
+            .as_str()
+            .unwrap_or("");
+        let names: Vec<&str> = m.state().iter().map(|q| q.name).collect();
+        assert!(
+            described.contains(&format!("`{}`: [{}]", m.name(), names.join(", "))),
+            "{described}"
+        );
+    }
     let gains = &spec["components"]["schemas"]["Gains"]["properties"]["feedback"];
-    assert_eq!(gains["items"]["minItems"], 2);
-    assert_eq!(gains["items"]["items"]["maxItems"], 6);
+    assert_eq!(gains["items"]["items"]["items"]["type"], "number");
+}
+
+/// `model` is one object schema per registered model, with exactly that
+/// model's parameters; only the default model's `type` may be left out.
+#[test]
+fn the_model_schema_is_one_object_per_model() {
+    let spec: serde_json::Value =
+        serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
+    let variants = spec["components"]["schemas"]["ProblemSpec"]["properties"]["model"]["oneOf"]
+        .as_array()
+        .unwrap();
+    let models = &ilqr_service::models::MODELS;
+    // One per model, then null.
+    assert_eq!(variants.len(), models.len() + 1);
+    assert_eq!(variants[models.len()]["type"], "null");
+    for (m, v) in models.iter().zip(variants) {
+        assert_eq!(
+            v["properties"]["type"]["enum"],
+            serde_json::json!([m.name()])
+        );
+        assert_eq!(v["additionalProperties"], false);
+        let required = v["required"].as_array().map(Vec::len).unwrap_or(0);
+        assert_eq!(
+            required == 0,
+            m.name() == ilqr_service::models::DEFAULT_MODEL,
+            "{}",
+            m.name()
+        );
+        let properties = v["properties"].as_object().unwrap();
+        assert_eq!(properties.len(), 1 + m.parameters().len(), "{}", m.name());
+        for p in m.parameters() {
+            let f = &properties[p.name];
+            assert_eq!(f["minimum"].as_f64(), Some(p.minimum), "{}", p.name);
+            assert_eq!(f["maximum"].as_f64(), Some(p.maximum), "{}", p.name);
+            assert_eq!(f["default"].as_f64(), Some(p.default), "{}", p.name);
+        }
+    }
 }
 
 /// The ranges in the schema are the ones validation enforces (utoipa's
 /// attributes need literals, so they are written twice).
 #[test]
 fn the_spec_states_the_validated_ranges() {
-    use ilqr_service::problem::{
-        MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_PARAMETER, MAX_STATE, MAX_WEIGHT, MIN_PARAMETER,
-    };
+    use ilqr_service::problem::{MAX_CONTROL, MAX_DT, MAX_STATE, MAX_WEIGHT};
     let spec: serde_json::Value =
         serde_json::from_str(&ilqr_service::server::openapi_json()).unwrap();
     let schemas = &spec["components"]["schemas"];
     let num = |v: &serde_json::Value| v.as_f64().unwrap_or(f64::NAN);
-    for field in ["mass", "inertia", "arm_length"] {
-        let f = &schemas["ModelSpec"]["properties"][field];
-        assert_eq!(num(&f["minimum"]), MIN_PARAMETER, "{field}");
-        assert_eq!(num(&f["maximum"]), MAX_PARAMETER, "{field}");
-    }
-    assert_eq!(
-        num(&schemas["ModelSpec"]["properties"]["gravity"]["maximum"]),
-        MAX_GRAVITY
-    );
     let problem = &schemas["ProblemSpec"]["properties"];
     assert_eq!(num(&problem["dt"]["maximum"]), MAX_DT);
     for field in ["initial_state", "goal_state"] {
@@ -152,9 +187,9 @@ fn an_obstacle_requires_its_center_only_and_states_the_weights_default() {
     );
 }
 
-/// Every `default` the spec states is the value an omitted field takes (the
-/// serialised `ProblemSpec::default()`), and every field of the problem
-/// that has a default states it.
+/// Every `default` the spec states is the value an omitted field takes,
+/// and a member whose default depends on the model names each model's in
+/// its description, as the registry has it.
 #[test]
 fn the_spec_states_the_defaults_the_code_applies() {
     let spec: serde_json::Value =
@@ -163,32 +198,16 @@ fn the_spec_states_the_defaults_the_code_applies() {
     let defaults = serde_json::to_value(ilqr_service::problem::ProblemSpec::default()).unwrap();
     let mut checked = 0;
     for (schema, value) in [
-        ("ProblemSpec", &defaults),
-        ("ModelSpec", &defaults["model"]),
-        ("Weights", &defaults["weights"]),
         ("SolverSpec", &defaults["solver"]),
         ("OutputSpec", &defaults["output"]),
     ] {
         let properties = schemas[schema]["properties"].as_object().unwrap();
         for (name, property) in properties {
-            // Nested objects and the optional initial guess have no single
-            // default value; their parts do. The time budget's default is
-            // the service's configured one, stated in words only: as a
-            // schema default, generated clients sent it and overrode it.
-            if [
-                "model",
-                "weights",
-                "solver",
-                "output",
-                "initial_controls",
-                "time_limit_ms",
-            ]
-            .contains(&name.as_str())
-            {
-                assert!(
-                    name != "time_limit_ms" || property.get("default").is_none(),
-                    "{property}"
-                );
+            // The time budget's default is the service's configured one,
+            // stated in words only: as a schema default, generated clients
+            // sent it and overrode it.
+            if name == "time_limit_ms" {
+                assert!(property.get("default").is_none(), "{property}");
                 continue;
             }
             assert_eq!(
@@ -199,7 +218,55 @@ fn the_spec_states_the_defaults_the_code_applies() {
             checked += 1;
         }
     }
-    assert_eq!(checked, 19);
+    assert_eq!(checked, 5);
+    let problem = &schemas["ProblemSpec"]["properties"];
+    assert_eq!(problem["integrator"]["default"], defaults["integrator"]);
+    // Model-dependent members state no single default, and list each
+    // model's in words.
+    for m in &ilqr_service::models::MODELS {
+        let d = ilqr_service::problem::ProblemSpec::default_for(*m);
+        let list = |xs: &[f64]| {
+            let xs: Vec<String> = xs.iter().map(|x| x.to_string()).collect();
+            format!("[{}]", xs.join(", "))
+        };
+        for (member, schema, value) in [
+            ("dt", &problem["dt"], d.dt.to_string()),
+            ("horizon", &problem["horizon"], d.horizon.to_string()),
+            (
+                "initial_state",
+                &problem["initial_state"],
+                list(&d.initial_state),
+            ),
+            ("goal_state", &problem["goal_state"], list(&d.goal_state)),
+            (
+                "state",
+                &schemas["Weights"]["properties"]["state"],
+                list(&d.weights.state),
+            ),
+            (
+                "control",
+                &schemas["Weights"]["properties"]["control"],
+                list(&d.weights.control),
+            ),
+            (
+                "terminal",
+                &schemas["Weights"]["properties"]["terminal"],
+                list(&d.weights.terminal),
+            ),
+        ] {
+            assert!(schema.get("default").is_none(), "{member}");
+            let described = schema["description"].as_str().unwrap_or("");
+            let at = described
+                .find(&format!("`{}`: ", m.name()))
+                .unwrap_or_else(|| panic!("{member}: no `{}` in {described}", m.name()));
+            let own = described[at..].split(';').next().unwrap_or("");
+            assert!(
+                own.contains(&value),
+                "{member} of {}: {value} not in {own}",
+                m.name()
+            );
+        }
+    }
 }
 
 /// The answers never hold `null` (left-out members are absent, and every

@@ -7,9 +7,10 @@ use std::sync::atomic::AtomicBool;
 use std::time::{Duration, Instant};
 
 use arbitrary::Arbitrary;
+use ilqr_service::models::MODELS;
 use ilqr_service::problem::{
-    MAX_CONTROL, MAX_DT, MAX_GRAVITY, MAX_ITERATIONS, MAX_OBSTACLES, MAX_PARAMETER, MAX_STATE,
-    MAX_WEIGHT, MIN_PARAMETER, Method, Obstacle, ProblemSpec,
+    Integrator, MAX_CONTROL, MAX_DT, MAX_ITERATIONS, MAX_OBSTACLES, MAX_STATE, MAX_WEIGHT, Method,
+    Obstacle, ProblemSpec,
 };
 use libfuzzer_sys::fuzz_target;
 
@@ -89,23 +90,28 @@ impl Num {
     }
 }
 
+/// Entries enough for any model's vectors (the longest state has 6).
+const MAX_LEN: usize = 6;
+
 #[derive(Arbitrary, Debug)]
 struct Input {
-    mass: Num,
-    inertia: Num,
-    arm: Num,
-    gravity: Num,
+    /// Which model (modulo their number).
+    model: u8,
+    rk4: bool,
+    /// The model's parameters, in its order, each in its own range.
+    parameters: [Num; MAX_LEN],
     dt: Num,
     horizon: u16,
     long: bool,
-    x0: [Num; 6],
-    goal: [Num; 6],
-    wq: [Num; 6],
-    wr: [Num; 2],
-    wf: [Num; 6],
+    x0: [Num; MAX_LEN],
+    goal: [Num; MAX_LEN],
+    wq: [Num; MAX_LEN],
+    wr: [Num; MAX_LEN],
+    wf: [Num; MAX_LEN],
     obstacles: Vec<([Num; 2], Num)>,
-    /// Initial controls: a pattern repeated over the horizon, or hover.
-    controls: Option<Vec<[Num; 2]>>,
+    /// Initial controls: a pattern repeated over the horizon, or the
+    /// model's rest controls.
+    controls: Option<Vec<[Num; MAX_LEN]>>,
     max_iterations: u16,
     tolerance: Num,
     budget_ms: u8,
@@ -114,12 +120,17 @@ struct Input {
 }
 
 fuzz_target!(|input: Input| {
-    let mut spec = ProblemSpec::default();
-    let m = &mut spec.model;
-    m.mass = input.mass.get(MIN_PARAMETER, MAX_PARAMETER, false);
-    m.inertia = input.inertia.get(MIN_PARAMETER, MAX_PARAMETER, false);
-    m.arm_length = input.arm.get(MIN_PARAMETER, MAX_PARAMETER, false);
-    m.gravity = input.gravity.get(0.0, MAX_GRAVITY, false);
+    let model = MODELS[usize::from(input.model) % MODELS.len()];
+    let mut spec = ProblemSpec::default_for(model);
+    for (i, p) in model.parameters().iter().enumerate() {
+        let value = input.parameters[i].get(p.minimum, p.maximum, false);
+        spec.model.parameters[i] = (p.name.to_owned(), value);
+    }
+    spec.integrator = if input.rk4 {
+        Integrator::Rk4
+    } else {
+        Integrator::Euler
+    };
     spec.dt = input.dt.get(1e-300, MAX_DT, false);
     if spec.dt <= 0.0 {
         spec.dt = 1e-300;
@@ -130,15 +141,15 @@ fuzz_target!(|input: Input| {
     } else {
         1 + usize::from(input.horizon) % 300
     };
-    for i in 0..6 {
-        spec.initial_state[i] = input.x0[i].get(0.0, MAX_STATE, true);
-        spec.goal_state[i] = input.goal[i].get(0.0, MAX_STATE, true);
-        spec.weights.state[i] = input.wq[i].get(0.0, MAX_WEIGHT, false);
-        spec.weights.terminal[i] = input.wf[i].get(0.0, MAX_WEIGHT, false);
-    }
-    for i in 0..2 {
-        spec.weights.control[i] = input.wr[i].get(0.0, MAX_WEIGHT, false);
-    }
+    let (nx, nu) = (model.state().len(), model.control().len());
+    let pick = |from: &[Num; MAX_LEN], n: usize, lo: f64, hi: f64, symmetric: bool| -> Vec<f64> {
+        from[..n].iter().map(|x| x.get(lo, hi, symmetric)).collect()
+    };
+    spec.initial_state = pick(&input.x0, nx, 0.0, MAX_STATE, true);
+    spec.goal_state = pick(&input.goal, nx, 0.0, MAX_STATE, true);
+    spec.weights.state = pick(&input.wq, nx, 0.0, MAX_WEIGHT, false);
+    spec.weights.terminal = pick(&input.wf, nx, 0.0, MAX_WEIGHT, false);
+    spec.weights.control = pick(&input.wr, nu, 0.0, MAX_WEIGHT, false);
     spec.obstacles = input
         .obstacles
         .iter()
@@ -153,13 +164,7 @@ fuzz_target!(|input: Input| {
         .collect();
     spec.initial_controls = input.controls.as_ref().filter(|p| !p.is_empty()).map(|p| {
         (0..spec.horizon)
-            .map(|k| {
-                let u = p[k % p.len()];
-                [
-                    u[0].get(0.0, MAX_CONTROL, true),
-                    u[1].get(0.0, MAX_CONTROL, true),
-                ]
-            })
+            .map(|k| pick(&p[k % p.len()], nu, 0.0, MAX_CONTROL, true))
             .collect()
     });
     spec.solver.max_iterations = usize::from(input.max_iterations) % (MAX_ITERATIONS + 1);

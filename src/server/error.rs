@@ -106,6 +106,9 @@ pub enum ApiError {
     /// Wrong method for the route (405): the detail echoes the request's
     /// method and path.
     MethodNotAllowed(String),
+    /// A query parameter the route does not take, or a value it cannot
+    /// read (400); the detail names the parameter and what it takes.
+    BadQuery(String),
 }
 
 impl ApiError {
@@ -158,6 +161,11 @@ impl ApiError {
                 "Internal error",
             ),
             Self::NotFound(_) => (StatusCode::NOT_FOUND, "not-found", "Not found"),
+            Self::BadQuery(_) => (
+                StatusCode::BAD_REQUEST,
+                "bad-query",
+                "Invalid query parameter",
+            ),
             Self::MethodNotAllowed(_) => (
                 StatusCode::METHOD_NOT_ALLOWED,
                 "method-not-allowed",
@@ -192,6 +200,7 @@ impl ApiError {
             Self::Internal => "internal",
             Self::NotFound(_) => "not_found",
             Self::MethodNotAllowed(_) => "method_not_allowed",
+            Self::BadQuery(_) => "bad_query",
         }
     }
 
@@ -283,7 +292,7 @@ impl ApiError {
                 vec![],
                 None,
             ),
-            Self::NotFound(detail) | Self::MethodNotAllowed(detail) => {
+            Self::NotFound(detail) | Self::MethodNotAllowed(detail) | Self::BadQuery(detail) => {
                 (detail.clone(), vec![], None)
             }
         };

@@ -22,9 +22,8 @@ use super::body::{BodyRules, read_with};
 use super::error::{ApiError, LoggedProblem, Overload, Problem};
 use super::pool::Ticket;
 use super::{AppState, metrics};
-use crate::problem::{
-    ModelSpec, OutputSpec, ParseError, ProblemSpec, SolverSpec, Weights, clip, parse,
-};
+use crate::problem::wire::{ProblemDoc, WeightsDoc};
+use crate::problem::{OutputSpec, ParseError, ProblemSpec, SolverSpec, clip, parse};
 use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
 
 /// The OpenAPI document's fixed parts; paths come from the router.
@@ -46,7 +45,7 @@ use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
     ),
     // Referenced only through `schema::object_or_null`, which utoipa does
     // not follow to collect them as it does a field's own type.
-    components(schemas(ModelSpec, Weights, SolverSpec, OutputSpec)),
+    components(schemas(WeightsDoc, SolverSpec, OutputSpec, crate::problem::Obstacle)),
     tags(
         (name = "solve", description = "Trajectory solves"),
         (name = "operations", description = "Health, readiness, metrics and this documentation")
@@ -58,6 +57,7 @@ fn api_router() -> OpenApiRouter<Arc<AppState>> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
         .routes(routes!(solve))
         .routes(routes!(default_problem))
+        .routes(routes!(list_models))
         .routes(routes!(healthz))
         .routes(routes!(readyz))
         .routes(routes!(metrics_text))
@@ -628,7 +628,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
     post,
     path = "/solve",
     tag = "solve",
-    request_body(content = ProblemSpec, content_type = "application/json"),
+    request_body(content = ProblemDoc, content_type = "application/json"),
     responses(
         (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult,
             headers(("Server-Timing" = String, description = "Milliseconds spent queued, solving, and serialising plus compressing the answer (not covered by the time budget), e.g. `queue;dur=0.02, solve;dur=0.35, encode;dur=0.61`"))),
@@ -987,22 +987,102 @@ fn reject(e: ApiError) -> ApiError {
     e
 }
 
-/// The default problem, every field expanded.
+/// The query of `GET /problems/default`.
+#[derive(Debug, Default, serde::Deserialize, utoipa::IntoParams)]
+#[serde(deny_unknown_fields)]
+#[into_params(parameter_in = Query)]
+struct DefaultQuery {
+    /// The model whose default problem to return (`GET /models` lists
+    /// them). Default `quadrotor_2d`, the seed scenario.
+    model: Option<String>,
+    /// `true`: indented JSON, for reading and editing. Default `false`.
+    pretty: Option<bool>,
+}
+
+/// A model's default problem, every field expanded.
 ///
-/// The seed scenario: fetch it, edit it, post it back.
-/// `solver.time_limit_ms` is this service's default budget;
-/// `initial_controls` is left out (its default, hover thrust, is N rows
-/// that would no longer fit once the horizon is edited).
+/// Fetch it, edit it, post it back to `/solve`. `solver.time_limit_ms` is
+/// this service's default budget; `initial_controls` is left out (its
+/// default, the model's rest controls, is N rows that would no longer fit
+/// once the horizon is edited).
 #[utoipa::path(
     get,
     path = "/problems/default",
     tag = "solve",
-    responses((status = 200, description = "The seed scenario, with this service's default time budget", body = ProblemSpec))
+    params(DefaultQuery),
+    responses(
+        (status = 200, description = "The model's default problem, with this service's default time budget", body = ProblemDoc),
+        (status = 400, description = "A query parameter this route does not take, or a value it cannot read", body = Problem, content_type = "application/problem+json"),
+        (status = 404, description = "No model of that name", body = Problem, content_type = "application/problem+json"),
+    )
 )]
-async fn default_problem(State(st): State<Arc<AppState>>) -> Json<ProblemSpec> {
-    let mut problem = ProblemSpec::default();
+async fn default_problem(
+    State(st): State<Arc<AppState>>,
+    query: Result<axum::extract::Query<DefaultQuery>, axum::extract::rejection::QueryRejection>,
+) -> Result<Response, ApiError> {
+    let query = query
+        .map_err(|e| {
+            ApiError::BadQuery(format!(
+                "{}; it takes `model` (a model's name) and `pretty` (true or false)",
+                e.body_text()
+            ))
+        })?
+        .0;
+    let model = match &query.model {
+        None => crate::models::default_model(),
+        Some(name) => crate::models::find(name).ok_or_else(|| {
+            ApiError::NotFound(format!(
+                "no model {}: the models are {} (GET /models describes them)",
+                shown(name.as_bytes()),
+                crate::models::names()
+            ))
+        })?,
+    };
+    let mut problem = ProblemSpec::default_for(model);
     problem.solver.time_limit_ms = Some(st.config.default_time_limit_ms);
-    Json(problem)
+    Ok(json_answer(&problem, query.pretty.unwrap_or(false)))
+}
+
+/// `value` as a JSON answer, indented when `pretty`.
+fn json_answer(value: &impl Serialize, pretty: bool) -> Response {
+    let body = if pretty {
+        serde_json::to_vec_pretty(value).map(|mut v| {
+            v.push(b'\n');
+            v
+        })
+    } else {
+        serde_json::to_vec(value)
+    };
+    match body {
+        Ok(bytes) => (
+            [(
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            )],
+            bytes,
+        )
+            .into_response(),
+        Err(_) => ApiError::Internal.into_response(),
+    }
+}
+
+/// The models this service solves for.
+///
+/// Each with its state and control components (names and units), its
+/// parameters (units, ranges, defaults), which state entries are its
+/// position in the plane, and its default problem.
+#[utoipa::path(
+    get,
+    path = "/models",
+    tag = "solve",
+    responses((status = 200, description = "Every model", body = crate::models::ModelList))
+)]
+async fn list_models(State(st): State<Arc<AppState>>) -> Response {
+    let mut list = crate::models::ModelList::new();
+    for m in &mut list.models {
+        m.default_problem.solver.time_limit_ms = Some(st.config.default_time_limit_ms);
+    }
+    json_answer(&list, false)
 }
 
 /// Liveness or readiness answer.
