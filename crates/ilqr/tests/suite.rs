@@ -16,3 +16,4 @@ mod linear_quadratic;
 mod optimality;
 mod quadrotor_seed;
 mod riccati;
+mod unicycle;
