@@ -17,3 +17,4 @@ mod optimality;
 mod quadrotor_seed;
 mod riccati;
 mod unicycle;
+mod warm_start;
