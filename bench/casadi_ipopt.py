@@ -5,47 +5,74 @@ What it is for
     general-purpose NLP solver, so that the two can be compared in one run:
     the optimal cost (they must agree) and the wall-clock time to solve.
 
-    The problem is the planar ("2-D") quadrotor of the seed scenario,
-    discretised with explicit Euler, x_{k+1} = x_k + dt f(x_k, u_k), with
+    The default problem is the planar ("2-D") quadrotor of the seed
+    scenario, discretised with explicit Euler, x_{k+1} = x_k + dt f(x_k, u_k),
+    with
 
         J = sum_{k=0}^{N-1} [ (x_k-g)'Q(x_k-g) + u_k'R u_k
                               + sum_obstacles q exp(-||p_k - c||) ]
             + (x_N-g)'Qf(x_N-g)
 
     (no 1/2 factors; the k = 0 stage keeps its constant x0 terms; p_k is the
-    position (px, py) of x_k). On the seed the optimum is J = 5520.212.
+    position, state entries 0 and 1, of x_k). On the seed the optimum is
+    J = 5520.212.
+
+    Two other discretisations and models are available:
+      * --integrator rk4 (or the problem's "integrator": "rk4"): the
+        classical Runge-Kutta step of ilqr::Rk4, zero-order hold on u:
+        k1 = f(x, u), k2 = f(x + h/2 k1, u), k3 = f(x + h/2 k2, u),
+        k4 = f(x + h k3, u), x+ = x + h/6 (k1 + 2 k2 + 2 k3 + k4).
+      * "model": {"type": "unicycle"}: ilqr::Unicycle, state [x, y, theta],
+        controls [v, omega], xdot = v cos theta, ydot = v sin theta,
+        thetadot = omega; no parameters.
 
     It is transcribed by direct multiple shooting with casadi.Opti: decision
-    variables X (6 x N+1) and U (2 x N), equality constraints for x0 and for
-    every Euler step. The initial guess is the same as iLQR's: hover thrust
-    m g / 2 on both rotors (or the problem's "initial_controls") and the
-    states of its rollout, so both solvers start from the same point.
+    variables X (nx x N+1) and U (nu x N), equality constraints for x0 and
+    for every step of the chosen integrator. The initial guess is the same
+    as iLQR's: the problem's "initial_controls", or else the model's rest
+    controls (hover thrust m g / 2 on both rotors; zero for the unicycle),
+    and the states of their rollout, so both solvers start from the same
+    point.
 
 How to run it
-    python3 -m venv /tmp/benchvenv
-    /tmp/benchvenv/bin/pip install -r bench/requirements.txt
-    /tmp/benchvenv/bin/python bench/casadi_ipopt.py                 # the seed
-    /tmp/benchvenv/bin/python bench/casadi_ipopt.py --problem P.json --repeat 10 --json
+    python3 -m venv .venv-bench
+    .venv-bench/bin/pip install -r bench/requirements.txt
+    .venv-bench/bin/python bench/casadi_ipopt.py                  # the seed, Euler
+    .venv-bench/bin/python bench/casadi_ipopt.py --integrator rk4 --controls-out U.json
+    .venv-bench/bin/python bench/casadi_ipopt.py --problem P.json --repeat 10 --json
 
-    --problem reads the service's request shape; every field is optional and
-    defaults to the seed:
-        {"model": {"mass", "inertia", "arm_length", "gravity"}, "dt", "horizon",
-         "initial_state": [6], "goal_state": [6],
-         "weights": {"state": [6], "control": [2], "terminal": [6]},
-         "obstacles": [{"center": [2], "weight"}], "initial_controls": [[2] x N]}
-    Other keys ("solver", "output", ...) are ignored.
+    --problem reads the service's request shape:
+        {"model": {"type", "mass", "inertia", "arm_length", "gravity"},
+         "integrator": "euler" | "rk4", "dt", "horizon",
+         "initial_state": [nx], "goal_state": [nx],
+         "weights": {"state": [nx], "control": [nu], "terminal": [nx]},
+         "obstacles": [{"center": [2], "weight"}], "initial_controls": [[nu] x N]}
+    Other keys ("solver", "output", ...) are ignored. For the quadrotor
+    ("type" "quadrotor_2d", the default) every field is optional and
+    defaults to the seed. For the unicycle ("type" "unicycle"), whose seed
+    there is none, initial_state, goal_state and all three weights are
+    required; a missing "obstacles" means none; dt and horizon default to
+    0.05 and 100 as for the quadrotor. --integrator, when given, overrides
+    the problem's "integrator" (default euler).
+
+    --controls-out FILE writes IPOPT's optimal controls as JSON,
+    {"initial_controls": [[nu] x N], "cost", "model", "integrator", "dt",
+    "horizon", "status", "iterations"}, so that a caller can warm-start
+    this project's solver with them (the "initial_controls" member is the
+    service request's field of that name).
 
 What it reports
-    The cost is recomputed in NumPy from a fresh Euler rollout of IPOPT's
-    optimal controls, so it is the cost of an exactly feasible trajectory,
-    the quantity iLQR reports, not IPOPT's objective at a point that
-    satisfies the dynamics only up to its tolerance. Time is the wall clock
-    of opti.solve(), best and median over --repeat solves; the first solve,
-    which also builds the NLP functions and IPOPT instance, is done once
-    beforehand and reported separately, together with the "cold" time
-    (building the Opti problem plus that first solve: what a service would
-    pay for a problem it has not seen). Every timed solve starts from the
-    same initial guess (Opti does not warm-start from the previous solution).
+    The cost is recomputed in NumPy from a fresh rollout of IPOPT's optimal
+    controls with the same integrator, so it is the cost of an exactly
+    feasible trajectory, the quantity iLQR reports, not IPOPT's objective
+    at a point that satisfies the dynamics only up to its tolerance. Time
+    is the wall clock of opti.solve(), best and median over --repeat
+    solves; the first solve, which also builds the NLP functions and IPOPT
+    instance, is done once beforehand and reported separately, together
+    with the "cold" time (building the Opti problem plus that first solve:
+    what a service would pay for a problem it has not seen). Every timed
+    solve starts from the same initial guess (Opti does not warm-start
+    from the previous solution).
 """
 
 from __future__ import annotations
@@ -61,13 +88,17 @@ from dataclasses import dataclass, field
 import casadi as ca
 import numpy as np
 
-NX, NU = 6, 2
+# State and control sizes of each model.
+DIMENSIONS = {"quadrotor_2d": (6, 2), "unicycle": (3, 2)}
+INTEGRATORS = ("euler", "rk4")
 
 
 @dataclass
 class Problem:
     """One discrete problem; the defaults are the seed scenario."""
 
+    model: str = "quadrotor_2d"
+    integrator: str = "euler"
     mass: float = 1.0
     inertia: float = 1.0
     arm_length: float = 1.0
@@ -76,12 +107,26 @@ class Problem:
     horizon: int = 100
     x0: list = field(default_factory=lambda: [5.0, 0.0, 0.0, 0.0, 0.0, 0.0])
     goal: list = field(default_factory=lambda: [4.0, 9.0, 0.0, 0.0, 0.0, 0.0])
-    q: list = field(default_factory=lambda: [1.0] * NX)  # diag(Q)
-    r: list = field(default_factory=lambda: [0.1] * NU)  # diag(R)
-    qf: list = field(default_factory=lambda: [50000.0] * NX)  # diag(Qf)
+    q: list = field(default_factory=lambda: [1.0] * 6)  # diag(Q)
+    r: list = field(default_factory=lambda: [0.1] * 2)  # diag(R)
+    qf: list = field(default_factory=lambda: [50000.0] * 6)  # diag(Qf)
     # (center, weight) pairs.
     obstacles: list = field(default_factory=lambda: [((4.5, 4.5), 1000.0)])
-    initial_controls: list | None = None  # N x 2; None means hover
+    initial_controls: list | None = None  # N x nu; None means rest controls
+
+    @property
+    def nx(self) -> int:
+        return DIMENSIONS[self.model][0]
+
+    @property
+    def nu(self) -> int:
+        return DIMENSIONS[self.model][1]
+
+    def rest_controls(self) -> list:
+        """The model's rest controls: hover thrust, or standing still."""
+        if self.model == "unicycle":
+            return [0.0, 0.0]
+        return [self.mass * self.gravity / 2.0] * 2
 
 
 def _floats(value, n, name):
@@ -91,14 +136,32 @@ def _floats(value, n, name):
     return [float(v) for v in value]
 
 
-def load_problem(path: str | None) -> Problem:
-    """The seed, with whatever fields the JSON file at `path` gives replaced."""
+def load_problem(path: str | None, integrator: str | None = None) -> Problem:
+    """The problem in the JSON file at `path` (the seed where it is None or
+    silent, for the quadrotor); `integrator`, if given, overrides the file's."""
     p = Problem()
-    if path is None:
-        return p
-    with open(path, encoding="utf-8") as fh:
-        raw = json.load(fh)
+    raw = {}
+    if path is not None:
+        with open(path, encoding="utf-8") as fh:
+            raw = json.load(fh)
     model = raw.get("model", {})
+    p.model = model.get("type", p.model)
+    if p.model not in DIMENSIONS:
+        sys.exit(f"problem: model.type must be one of {sorted(DIMENSIONS)}, got {p.model!r}")
+    p.integrator = integrator or raw.get("integrator", p.integrator)
+    if p.integrator not in INTEGRATORS:
+        sys.exit(f"problem: integrator must be one of {list(INTEGRATORS)}, got {p.integrator!r}")
+    nx, nu = p.nx, p.nu
+    if p.model == "unicycle":
+        weights = raw.get("weights", {})
+        missing = [k for k in ("initial_state", "goal_state") if k not in raw]
+        missing += [f"weights.{k}" for k in ("state", "control", "terminal") if k not in weights]
+        if missing:
+            sys.exit(f"problem: the unicycle has no defaults for {', '.join(missing)}")
+        p.obstacles = []
+        unknown = [k for k in ("mass", "inertia", "arm_length", "gravity") if k in model]
+        if unknown:
+            sys.exit(f"problem: the unicycle has no parameters ({', '.join(unknown)} given)")
     for key in ("mass", "inertia", "arm_length", "gravity"):
         if key in model:
             setattr(p, key, float(model[key]))
@@ -109,16 +172,16 @@ def load_problem(path: str | None) -> Problem:
         if p.horizon < 1:
             sys.exit("problem: horizon must be at least 1")
     if "initial_state" in raw:
-        p.x0 = _floats(raw["initial_state"], NX, "initial_state")
+        p.x0 = _floats(raw["initial_state"], nx, "initial_state")
     if "goal_state" in raw:
-        p.goal = _floats(raw["goal_state"], NX, "goal_state")
+        p.goal = _floats(raw["goal_state"], nx, "goal_state")
     weights = raw.get("weights", {})
     if "state" in weights:
-        p.q = _floats(weights["state"], NX, "weights.state")
+        p.q = _floats(weights["state"], nx, "weights.state")
     if "control" in weights:
-        p.r = _floats(weights["control"], NU, "weights.control")
+        p.r = _floats(weights["control"], nu, "weights.control")
     if "terminal" in weights:
-        p.qf = _floats(weights["terminal"], NX, "weights.terminal")
+        p.qf = _floats(weights["terminal"], nx, "weights.terminal")
     # An explicit empty list means "no obstacles"; only a missing key keeps the seed's.
     if "obstacles" in raw:
         p.obstacles = [
@@ -129,17 +192,21 @@ def load_problem(path: str | None) -> Problem:
         ctrl = raw["initial_controls"]
         if len(ctrl) != p.horizon:
             sys.exit(f"problem: initial_controls has {len(ctrl)} rows, horizon is {p.horizon}")
-        p.initial_controls = [_floats(u, NU, "initial_controls[]") for u in ctrl]
+        p.initial_controls = [_floats(u, nu, "initial_controls[]") for u in ctrl]
     return p
 
 
-# The model and cost are written once, against a "backend" module (numpy or
-# casadi) that supplies sin/cos/exp/sqrt, so the NLP and the NumPy check
-# below evaluate literally the same formulas.
+# The model, integrator and cost are written once, against a "backend"
+# module (numpy or casadi) that supplies sin/cos/exp/sqrt, so the NLP and
+# the NumPy check below evaluate literally the same formulas.
 
 
 def continuous_dynamics(p: Problem, x, u, lib):
-    """f(x, u) as a list of 6 expressions; x = [px, py, theta, vx, vy, omega]."""
+    """f(x, u) as a list of nx expressions."""
+    if p.model == "unicycle":
+        # x = [px, py, theta], u = [v, omega]
+        return [u[0] * lib.cos(x[2]), u[0] * lib.sin(x[2]), u[1]]
+    # x = [px, py, theta, vx, vy, omega], u = [u1, u2]
     thrust = u[0] + u[1]
     return [
         x[3],
@@ -151,10 +218,31 @@ def continuous_dynamics(p: Problem, x, u, lib):
     ]
 
 
+def _vector(items, lib):
+    """A list of expressions as the backend's column vector."""
+    return ca.vertcat(*items) if lib is ca else np.array(items)
+
+
+def discrete_step(p: Problem, x, u, lib):
+    """x_{k+1} from x_k = x (a vector of the backend) and u_k = u."""
+    h = p.dt
+
+    def f(y):
+        return _vector(continuous_dynamics(p, y, u, lib), lib)
+
+    if p.integrator == "euler":
+        return x + h * f(x)
+    k1 = f(x)
+    k2 = f(x + (0.5 * h) * k1)
+    k3 = f(x + (0.5 * h) * k2)
+    k4 = f(x + h * k3)
+    return x + (h / 6.0) * (k1 + 2.0 * (k2 + k3) + k4)
+
+
 def stage_cost(p: Problem, x, u, lib):
     """l(x, u) = (x-g)'Q(x-g) + u'Ru + sum q exp(-||p - c||), no 1/2 factors."""
-    l = sum(p.q[i] * (x[i] - p.goal[i]) ** 2 for i in range(NX))
-    l += sum(p.r[j] * u[j] ** 2 for j in range(NU))
+    l = sum(p.q[i] * (x[i] - p.goal[i]) ** 2 for i in range(p.nx))
+    l += sum(p.r[j] * u[j] ** 2 for j in range(p.nu))
     for (cx, cy), weight in p.obstacles:
         # The exact Euclidean norm, no epsilon under the root: an epsilon
         # would shift every obstacle term and so the cost we compare. The
@@ -165,16 +253,15 @@ def stage_cost(p: Problem, x, u, lib):
 
 
 def terminal_cost(p: Problem, x):
-    return sum(p.qf[i] * (x[i] - p.goal[i]) ** 2 for i in range(NX))
+    return sum(p.qf[i] * (x[i] - p.goal[i]) ** 2 for i in range(p.nx))
 
 
 def rollout(p: Problem, controls: np.ndarray) -> np.ndarray:
-    """States (N+1 x 6) of the explicit Euler rollout of `controls` (N x 2) from x0."""
-    xs = np.empty((p.horizon + 1, NX))
+    """States (N+1 x nx) of the rollout of `controls` (N x nu) from x0."""
+    xs = np.empty((p.horizon + 1, p.nx))
     xs[0] = p.x0
     for k in range(p.horizon):
-        f = np.array(continuous_dynamics(p, xs[k], controls[k], np))
-        xs[k + 1] = xs[k] + p.dt * f
+        xs[k + 1] = discrete_step(p, xs[k], controls[k], np)
     return xs
 
 
@@ -186,13 +273,12 @@ def total_cost(p: Problem, xs: np.ndarray, us: np.ndarray) -> float:
 def build_nlp(p: Problem, x_guess: np.ndarray, u_guess: np.ndarray, expand: bool = True):
     """The multiple-shooting NLP as a ready-to-solve casadi.Opti, and its X, U."""
     opti = ca.Opti()
-    X = opti.variable(NX, p.horizon + 1)
-    U = opti.variable(NU, p.horizon)
+    X = opti.variable(p.nx, p.horizon + 1)
+    U = opti.variable(p.nu, p.horizon)
 
     opti.subject_to(X[:, 0] == ca.DM(p.x0))
     for k in range(p.horizon):
-        f = ca.vertcat(*continuous_dynamics(p, X[:, k], U[:, k], ca))
-        opti.subject_to(X[:, k + 1] == X[:, k] + p.dt * f)
+        opti.subject_to(X[:, k + 1] == discrete_step(p, X[:, k], U[:, k], ca))
 
     J = sum(stage_cost(p, X[:, k], U[:, k], ca) for k in range(p.horizon))
     opti.minimize(J + terminal_cost(p, X[:, p.horizon]))
@@ -238,17 +324,21 @@ def main() -> int:
     ap.add_argument("--json", action="store_true", help="print one JSON object instead of text")
     ap.add_argument("--no-expand", action="store_true",
                     help="evaluate the MX graph as built (CasADi's default) instead of expanding it to SX")
+    ap.add_argument("--integrator", choices=INTEGRATORS,
+                    help="the discretisation (default: the problem's \"integrator\", else euler)")
+    ap.add_argument("--controls-out", metavar="FILE",
+                    help="write IPOPT's optimal controls as JSON (\"initial_controls\" and metadata)")
     args = ap.parse_args()
     if args.repeat < 1:
         ap.error("--repeat must be at least 1")
 
-    p = load_problem(args.problem)
+    p = load_problem(args.problem, args.integrator)
 
     # Same starting point as iLQR: the controls, and the states of their rollout.
     if p.initial_controls is not None:
         u_guess = np.array(p.initial_controls, dtype=float)
     else:
-        u_guess = np.full((p.horizon, NU), p.mass * p.gravity / 2.0)
+        u_guess = np.tile(p.rest_controls(), (p.horizon, 1)).astype(float)
     x_guess = rollout(p, u_guess)
     initial_cost = total_cost(p, x_guess, u_guess)
 
@@ -274,10 +364,10 @@ def main() -> int:
 
     stats = sol.stats()
     status = stats.get("return_status", "unknown")
-    us = np.array(sol.value(U), dtype=float).reshape(NU, p.horizon).T
-    xs_nlp = np.array(sol.value(X), dtype=float).reshape(NX, p.horizon + 1).T
+    us = np.array(sol.value(U), dtype=float).reshape(p.nu, p.horizon).T
+    xs_nlp = np.array(sol.value(X), dtype=float).reshape(p.nx, p.horizon + 1).T
 
-    # The reported cost: an exact Euler rollout of the optimal controls (see
+    # The reported cost: an exact rollout of the optimal controls (see
     # the docstring). The NLP's own objective and the largest dynamics defect
     # are kept to show the two agree.
     xs = rollout(p, us)
@@ -293,9 +383,26 @@ def main() -> int:
     median_ms = statistics.median(solve_ms)
     iters = stats["iter_count"]
 
+    if args.controls_out:
+        with open(args.controls_out, "w", encoding="utf-8") as fh:
+            json.dump({
+                "cost": cost,
+                "model": p.model,
+                "integrator": p.integrator,
+                "dt": p.dt,
+                "horizon": p.horizon,
+                "status": status,
+                "iterations": iters,
+                # repr-exact floats, so a reader gets IPOPT's controls bit for bit.
+                "initial_controls": us.tolist(),
+            }, fh)
+            fh.write("\n")
+
     if args.json:
         out = {
             "solver": "casadi-ipopt",
+            "model": p.model,
+            "integrator": p.integrator,
             "cost": cost,
             "iterations": iters,
             "best_ms": best_ms,
@@ -316,11 +423,11 @@ def main() -> int:
         }
         print(json.dumps(out))
     else:
-        print(f"casadi-ipopt (CasADi {ca.__version__}), N={p.horizon}, dt={p.dt}")
+        print(f"casadi-ipopt (CasADi {ca.__version__}), {p.model}, {p.integrator}, N={p.horizon}, dt={p.dt}")
         print(f"  status          {status}")
         print(f"  iterations      {iters}")
         print(f"  initial cost    {initial_cost:.6f}")
-        print(f"  cost            {cost:.6f}   (NLP objective {nlp_cost:.6f}, max defect {defect:.1e})")
+        print(f"  cost            {cost:.9f}   (NLP objective {nlp_cost:.9f}, max defect {defect:.1e})")
         print(f"  goal distance   {goal_distance:.6f}")
         for ((cx, cy), _), d in zip(p.obstacles, closest):
             print(f"  closest to ({cx:g}, {cy:g})   {d:.6f}")

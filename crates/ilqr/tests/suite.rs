@@ -16,3 +16,5 @@ mod linear_quadratic;
 mod optimality;
 mod quadrotor_seed;
 mod riccati;
+mod unicycle;
+mod warm_start;
