@@ -47,29 +47,27 @@ pub struct Options {
     /// The default, 1e20, is far above iLQG.m's 1e10 because `Q_uu` here is
     /// not normalised: the obstacle term's negative curvature (up to `q/ρ`
     /// per knot) accumulates through `V_xx` over the horizon, so `Q_uu` can be
-    /// of order −1e11 or lower. With 1e10, a start within 1 mm of an
-    /// obstacle centre, the seed at `N = 1000` or `2000`, or `dt = 1` ended
-    /// with `NoProgress` at iteration 0 or 4; with 1e20 they converge, and on
-    /// 300 random problems `NoProgress` fell from 44 to 2
-    /// (`bench/robustness.py`). A solve that cannot progress now gives up
+    /// of order −1e11 or lower: a start within 1 mm of an obstacle centre,
+    /// the seed at `N = 1000` or `2000`, or `dt = 1` need μ above 1e10 on
+    /// their first iterations, and with 1e20 the exact Hessian converges
+    /// there. The price is that a solve that cannot progress gives up
     /// later: from μ = 1, the schedule passes 1e10 after 10 consecutive
     /// increases and 1e20 after 14.
     pub mu_max: f64,
     /// Largest μ at which a full step's small gain counts as convergence
-    /// (the first test under `tolerance`). Above it μ was raised to force
-    /// `Q_uu` positive definite against strong negative curvature, every
-    /// step is tiny wherever the iterate is, and its small gain is no
-    /// evidence of a minimum: a trajectory held on an obstacle's centre
-    /// (q = 1e6, 0.1 mm off) took one step at μ = 8e15 and was called
-    /// converged at 9 m from the goal. The model test, with its pass at
-    /// μ = 0, still applies there.
+    /// (the first test under `tolerance`). Above it μ has been raised to
+    /// force `Q_uu` positive definite against strong negative curvature,
+    /// every step is tiny wherever the iterate is, and its small gain is no
+    /// evidence of a minimum: 0.1 mm from the centre of a q = 1e6 obstacle
+    /// the first pass needs μ ≈ 8e15, where a full step gains almost
+    /// nothing 9 m from the goal. The model test, with its pass at μ = 0,
+    /// still applies there.
     ///
-    /// The default, 1e6, is far from both sides measured on the 300 random
-    /// problems of `bench/robustness.py`: every solve that converged did so
-    /// at μ ≤ 17, and the false convergences found were at μ ≥ 8e15.
-    /// Requiring μ ≤ `mu_min` instead cost 16 of those 259 genuine optima
-    /// their `Converged` (they ended `NoProgress` or `MaxIterations` at
-    /// costs at most 6e-8 lower, problem 127's 1.9e-6 aside).
+    /// The default, 1e6, is far from both sides: on the random problems of
+    /// `bench/robustness.py` solves converge at μ ≤ 17, and steps that only
+    /// look converged come at μ ≥ 8e15. Requiring μ ≤ `mu_min` instead
+    /// would deny genuine optima their `Converged`: they would end
+    /// `NoProgress` or `MaxIterations` at costs at most 6e-8 lower.
     pub mu_converged_max: f64,
     /// Base factor of the μ schedule (Tassa's Δ₀).
     pub mu_factor: f64,
@@ -85,12 +83,13 @@ pub struct Options {
     ///
     /// "Attains" is up to round-off: within ε² (4.9e-32) of the initial
     /// cost's distance from the bound (`ROUND_OFF_FLOOR`). A zero optimum
-    /// is rarely reached exactly: a terminal-only cost (initial 82) came to
-    /// rest at 7.8e-34, the states 1e-17 from the goal, where the relative
-    /// test would need a gain of 1e-43 that round-off never gives; that
-    /// solve raised μ to 2e18 and ended `NoProgress`. Only a solve whose
-    /// optimum lies within that floor of the bound can stop on it (or one
-    /// whose guess is about 1e16 times as costly as its optimum).
+    /// is rarely reached exactly: a terminal-only cost (initial 82) comes
+    /// to rest at 7.8e-34, the states 1e-17 from the goal, where the
+    /// relative test would need a gain of 1e-43 that round-off never gives;
+    /// without the bound that solve raises μ to 2e18 and ends `NoProgress`.
+    /// Only a solve whose optimum lies within that floor of the bound can
+    /// stop on it (or one whose guess is about 1e16 times as costly as its
+    /// optimum).
     pub cost_lower_bound: Option<f64>,
     /// When μ passes `mu_max`, go on with the cost's convex expansion
     /// ([`Cost::stage_expand_convex`]: the obstacle terms' negative
@@ -98,13 +97,14 @@ pub struct Options {
     /// again from `mu_init`. Where the convex expansion converges, the exact
     /// Hessian takes over again to check that point: its larger curvature
     /// can under-predict what a step gains (the seed at `dt = 10` with a
-    /// 1e12 obstacle stopped 1.9e-6 above IPOPT's optimum). If the exact
+    /// 1e12 obstacle: the convex minimum is 1.9e-6 above IPOPT's optimum,
+    /// which the exact Hessian reaches from there). If the exact
     /// Hessian cannot move from there at any μ, the solve ends `NoProgress`
     /// (with the convex expansion's gains where no exact pass completed:
     /// [`Summary::gains_convex`]); if it moves and then gets stuck in turn,
-    /// the convex expansion takes over again. Only a solve that would have
-    /// ended `NoProgress` changes, so the seed problem and every problem
-    /// that converged before are untouched.
+    /// the convex expansion takes over again. The fallback starts only
+    /// where the solve would otherwise end `NoProgress`, so every solve
+    /// that ends another way without it is unchanged by it.
     /// Skipped for a cost without a convex approximation
     /// ([`Cost::has_convex_approximation`]: no obstacle), where it would
     /// repeat what just failed.
@@ -115,9 +115,10 @@ pub struct Options {
     /// Over long horizons the exact Hessian's negative curvature
     /// accumulates through `V_xx` until no μ up to 1e20 makes `Q_uu`
     /// positive definite: from a near-hover guess (4.9051 N per rotor),
-    /// N·dt = 200 s and 400 s ended `NoProgress` at iteration 0–2; with the
-    /// fallback they converge or end at the iteration cap far below their
-    /// initial cost (tests in `crates/ilqr/tests/quadrotor_seed.rs`).
+    /// N·dt = 200 s and 400 s end `NoProgress` at iteration 0–2 without the
+    /// fallback; with it they converge or end at the iteration cap far
+    /// below their initial cost (tests in
+    /// `crates/ilqr/tests/quadrotor_seed.rs`).
     pub convex_fallback: bool,
     /// Keep the dynamics' second derivatives in the backward pass (DDP)
     /// instead of dropping them (iLQR, the paper's eqs. 33–35): each knot's
@@ -128,13 +129,13 @@ pub struct Options {
     ///
     /// Where the optimum has large costates, iLQR's model misses those
     /// terms and converges linearly, in hundreds of damped steps; DDP's
-    /// converges in a few. Measured with `ilqr-service solve` (2026-11-24):
-    /// the seed with `R = 90·I` took 483 iterations, with DDP 7 (the same
-    /// optimum to 2.5e-10); `inertia` 1e-4 stopped at the 500-iteration cap
-    /// at 2.6× the optimum, DDP converged to it (IPOPT's 5230.6) in 58. On
-    /// the seed DDP took 32 iterations to a different local optimum, 5418.30
-    /// against 5520.21 (IPOPT started there stays there). Each backward
-    /// pass costs a little more (one curvature per knot).
+    /// converges in a few: the seed with `R = 90·I` takes 483 iterations,
+    /// with DDP 7 (the same optimum to 2.5e-10); with `inertia` 1e-4 iLQR
+    /// stops at the 500-iteration cap at 2.6× the optimum, and DDP
+    /// converges to it (IPOPT's 5230.6) in 58. On the seed DDP takes 32
+    /// iterations to a different local optimum, 5418.30 against 5520.21
+    /// (IPOPT started there stays there). Each backward pass costs a
+    /// little more (one curvature per knot).
     pub second_order: bool,
 }
 

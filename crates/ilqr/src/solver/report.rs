@@ -16,8 +16,9 @@ pub enum Status {
     /// The exact Hessian's model predicts no full step would gain
     /// `tolerance·|J|`, after a full step gained less than that or without
     /// regularisation (see [`Options::tolerance`]), or the cost reached
-    /// [`Options::cost_lower_bound`] (up to round-off). A minimum the convex expansion finds
-    /// is checked with the exact Hessian first ([`Options::convex_fallback`]).
+    /// [`Options::cost_lower_bound`] (up to round-off). A minimum the convex
+    /// expansion finds is checked with the exact Hessian first
+    /// ([`Options::convex_fallback`]).
     Converged,
     /// `max_iterations` were spent first.
     MaxIterations,
@@ -37,8 +38,8 @@ pub enum Status {
 
 /// One iteration of the solve, as recorded in the trace.
 ///
-/// `non_exhaustive`: the solver makes these, callers read them, so a field
-/// added later (as `convex_model` was) breaks no caller.
+/// `non_exhaustive`: the solver makes these and callers only read them, so
+/// a field added to them breaks no caller.
 #[derive(Debug, Clone, Copy, PartialEq)]
 #[non_exhaustive]
 pub struct TraceRow {
@@ -94,13 +95,14 @@ pub struct Summary {
     pub has_gains: bool,
     /// Whether the gains are about the iterate before the returned one: the
     /// solve stopped (a time limit, cancellation, or [`Status::NoProgress`]
-    /// without [`Options::convex_fallback`]) after an accepted step, before the backward pass about the new
-    /// iterate completed (during its linearisation, the pass itself, or
-    /// while raising μ). `K` is then the policy of a trajectory one step
-    /// away (at the last knot 0–12% off with one to six obstacles, 2–60%
-    /// with 100, in the cases measured) and `d` can be far from the next
-    /// step (7.8% to over 1000% off). False whenever the gains were computed
-    /// about the returned trajectory, which every other exit guarantees.
+    /// without [`Options::convex_fallback`]) after an accepted step, before
+    /// the backward pass about the new iterate completed (during its
+    /// linearisation, the pass itself, or while raising μ). `K` is then the
+    /// policy of a trajectory one step away (at the last knot 0–12% off
+    /// with one to six obstacles, 2–60% with 100, in the cases measured)
+    /// and `d` can be far from the next step (7.8% to over 1000% off).
+    /// False whenever the gains were computed about the returned
+    /// trajectory, which every other exit guarantees.
     pub gains_about_previous_iterate: bool,
     /// The regularisation μ of the backward pass that produced the gains
     /// (`Q_uu + μI` in place of `Q_uu`): 0 means the undamped Riccati gains

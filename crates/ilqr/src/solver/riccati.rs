@@ -64,8 +64,8 @@ pub struct RiccatiStep<const NX: usize, const NU: usize> {
 ///
 /// Always inlined, so that a constant `sparsity` folds into the caller's
 /// copy as it does in the solver's: a pattern read at run time trades the
-/// test of each entry's value for a test of its flag, and one knot took
-/// as long as with no pattern (BENCHMARKS.md).
+/// test of each entry's value for a test of its flag, so that one knot
+/// takes as long as with no pattern at all.
 #[allow(non_snake_case)]
 #[inline(always)]
 pub fn riccati_step<const NX: usize, const NU: usize>(
