@@ -11,5 +11,6 @@
 
 mod cli;
 mod http;
+mod models;
 mod solve;
 mod validation;
