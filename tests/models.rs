@@ -146,6 +146,47 @@ fn the_unicycle_reaches_crocoddyls_optimum() {
     }
 }
 
+/// The CLI solves the same unicycle problem to the same optimum, and its
+/// summary says which model and integrator it used.
+#[test]
+fn the_cli_solves_a_unicycle_problem_to_crocoddyls_optimum() {
+    use std::io::Write;
+    use std::process::{Command, Stdio};
+    let doc = json!({
+        "model": {"type": "unicycle"},
+        "dt": 0.1,
+        "horizon": 100,
+        "initial_state": [-1, -1, 1],
+        "goal_state": [0, 0, 0],
+        "weights": {"state": [50, 50, 50], "control": [0.5, 0.5], "terminal": [50, 50, 50]},
+        "obstacles": [],
+    });
+    let mut child = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["solve", "-", "--output", "-"])
+        .stdin(Stdio::piped())
+        .stdout(Stdio::piped())
+        .stderr(Stdio::piped())
+        .spawn()
+        .unwrap();
+    child
+        .stdin
+        .take()
+        .unwrap()
+        .write_all(doc.to_string().as_bytes())
+        .unwrap();
+    let out = child.wait_with_output().unwrap();
+    assert!(out.status.success());
+    let summary = String::from_utf8(out.stderr).unwrap();
+    assert!(
+        summary.starts_with("model            unicycle (euler)\nstatus           converged"),
+        "{summary}"
+    );
+    let result: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let crocoddyl = 250.039_319_973_201;
+    let cost = result["cost"].as_f64().unwrap();
+    assert!((cost - crocoddyl).abs() <= 1e-6 * crocoddyl, "{cost}");
+}
+
 /// IPOPT's optimum of the seed problem transcribed with the same RK4 step
 /// (`bench/casadi_ipopt.py --integrator rk4`): started from its controls,
 /// the service's RK4 solve stays at its cost and converges at once.
