@@ -702,7 +702,7 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         .worker_threads(config.runtime_threads())
         .enable_all()
         .build()?;
-    runtime.block_on(async move {
+    let served = runtime.block_on(async move {
         // The state (its checks, the worker threads) before the socket, so
         // that "listening" is logged only by a server that can serve.
         let state = AppState::new(config)?;
@@ -729,7 +729,13 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
             "listening"
         );
         run(listener, state, shutdown_signal()).await
-    })
+    });
+    // Everything that must finish (the drain, the answers being written)
+    // has when `run` returns. Dropping the runtime would also wait for its
+    // blocking threads, such as a large body's parse still running for a
+    // client that left (`body::read_with`), before the process could exit.
+    runtime.shutdown_background();
+    served
 }
 
 /// Why the service cannot listen on `bind`, and, where another address
