@@ -748,9 +748,9 @@ async fn one_answer_lists_wrong_types_and_out_of_range_values() {
 
 /// A body declared larger than the limit is refused from its headers, before
 /// any of it is sent (and before `Expect: 100-continue` is answered); a
-/// chunked one as soon as its chunk-size lines declare more than the limit
-/// (it used to wait for the read timeout, 30 s, and get a 408), on the
-/// first request of a connection or a later one.
+/// chunked one as soon as its chunk-size lines declare more than the limit,
+/// without waiting for the bytes or the read timeout, on the first request
+/// of a connection or a later one.
 #[tokio::test]
 async fn a_declared_oversized_body_is_refused_at_once() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
@@ -1067,9 +1067,8 @@ async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
 
 /// The budget runs from admission: a solve whose budget runs out while it
 /// waits in the queue is answered then, 503 `expired-in-queue` with
-/// `Retry-After`, not when the solve ahead of it ends, and never runs (it
-/// used to be answered 200 with the initial guess, 0 iterations, rolled out
-/// on a thread of its own).
+/// `Retry-After`, not when the solve ahead of it ends, and never runs: no
+/// 200 with the unimproved initial guess, and no worker time.
 #[tokio::test]
 async fn a_solve_whose_budget_runs_out_in_the_queue_is_answered_503_then() {
     let s = Server::start(small(1, 1)).await;

@@ -12,9 +12,9 @@
 //!
 //! A body over `--max-body-bytes` is refused 413 before it is read when it
 //! says so: by its `Content-Length`, or, chunked, by its chunk-size lines,
-//! which `chunks` reads off the wire as they arrive (a client that
-//! declared a huge chunk and sent nothing more used to wait for the read
-//! timeout and a 408).
+//! which `chunks` reads off the wire as they arrive, so a client that
+//! declares a huge chunk and sends nothing more is not held until the read
+//! timeout.
 //!
 //! Bytes are counted as they arrive: a body holds the buffer it has grown
 //! into (doubling, up to its declared length), never more than twice what

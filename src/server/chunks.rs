@@ -3,9 +3,10 @@
 //! A body with a `Content-Length` over `--max-body-bytes` is refused from
 //! its headers (`body::read_with`). A chunked one declares its size chunk
 //! by chunk, each on a size line (`ffffff\r\n`), but hyper decodes those
-//! lines itself and hands on only the bytes that arrived: a client that
-//! declared a 16 MB chunk and then sent nothing more was answered 408
-//! after the read timeout (30 s by default), not 413.
+//! lines itself and hands on only the bytes that arrived: from the body
+//! alone, a client that declares a 16 MB chunk and then sends nothing more
+//! is seen only when the read timeout (30 s by default) ends its read, as
+//! a 408.
 //!
 //! [`Sniff`] wraps a connection's socket and feeds every byte read to a
 //! small parser of HTTP/1.1 message framing ([`Framing`]) that follows

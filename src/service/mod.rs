@@ -663,8 +663,9 @@ impl<T> Drop for Waiting<T> {
 /// from the queue, or sets the running solve's cancel flag.
 pub struct Pending<T> {
     waiting: Waiting<T>,
-    /// Dropped last: the solve counts as in flight (for the drain) until
-    /// its caller has its answer or has left.
+    /// Dropped after `waiting` (fields drop in order), so a queued solve is
+    /// withdrawn before its cancel flag is set; the solve counts as in
+    /// flight (for the drain) until its caller has its answer or has left.
     _guard: InFlight,
     service: Arc<SolveService>,
     admitted: Instant,
