@@ -749,3 +749,94 @@ impl<T> Pending<T> {
         }
     }
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn service(workers: usize, queue_capacity: usize) -> Arc<SolveService> {
+        SolveService::new(Settings {
+            workers,
+            queue_capacity,
+            limits: Limits::default(),
+            default_time_limit: Some(Duration::from_secs(10)),
+            retry_after_secs: 1,
+        })
+        .unwrap()
+    }
+
+    /// A problem that runs until its budget: 10000 steps, 100 far
+    /// obstacles (about 0.1 s per iteration), no tolerance.
+    fn slow(time_limit_ms: u64) -> ProblemSpec {
+        let obstacles: Vec<String> = (0..100)
+            .map(|j| format!(r#"{{"center": [{}, 1000], "weight": 1}}"#, 1000 + j))
+            .collect();
+        let json = format!(
+            r#"{{"horizon": 10000, "dt": 0.0005, "obstacles": [{}],
+                "solver": {{"tolerance": 0, "max_iterations": 10000, "time_limit_ms": {time_limit_ms}}},
+                "output": {{"gains": false, "trace": false}}}}"#,
+            obstacles.join(",")
+        );
+        crate::problem::parse(json.as_bytes()).unwrap()
+    }
+
+    /// The status and iterations of a result, as an encoder a test can read.
+    fn status(r: &SolveResult) -> Result<(SolveStatus, usize), EncodeError> {
+        Ok((r.status, r.iterations))
+    }
+
+    /// A caller's deadline shorter than the problem's budget ends the solve
+    /// there.
+    #[tokio::test]
+    async fn a_callers_deadline_bounds_the_budget() {
+        let service = service(1, 0);
+        let request = SolveRequest::new(slow(5000), Transport::Grpc)
+            .deadline(Instant::now() + Duration::from_millis(300));
+        let solved = service.solve(request, status).await.unwrap();
+        assert_eq!(solved.answer.0, SolveStatus::TimeLimit);
+        assert!(solved.solve_ms < 1500.0, "{}", solved.solve_ms);
+    }
+
+    /// Invalid problems, a transport's own refusal and a draining service
+    /// are refused before admission, each with its own reason.
+    #[tokio::test]
+    async fn refusals_before_admission_say_why() {
+        let service = service(1, 0);
+        let invalid = crate::problem::parse(br#"{"dt": 0}"#).unwrap();
+        let e = service
+            .solve(SolveRequest::new(invalid, Transport::Http), status)
+            .await
+            .unwrap_err();
+        assert!(matches!(e, SolveError::Invalid(_)), "{e:?}");
+        let busy =
+            SolveRequest::new(slow(100), Transport::Http).refuse_if("answer_budget", || true);
+        let e = service.solve(busy, status).await.unwrap_err();
+        assert_eq!(e.reason(), "answer_budget");
+        assert!(service.is_ready());
+        service.drain(Duration::ZERO).await;
+        assert!(!service.is_ready());
+        let e = service
+            .solve(SolveRequest::new(slow(100), Transport::Http), status)
+            .await
+            .unwrap_err();
+        assert_eq!(e, SolveError::ShuttingDown);
+    }
+
+    /// Dropping a pending solve cancels it: the only worker is free again
+    /// long before the solve's budget.
+    #[tokio::test]
+    async fn dropping_a_pending_solve_cancels_it() {
+        let service = service(1, 0);
+        let pending = service
+            .submit(SolveRequest::new(slow(20_000), Transport::Http), status)
+            .unwrap();
+        tokio::time::sleep(Duration::from_millis(200)).await;
+        assert_eq!(service.counts(), (1, 0));
+        drop(pending);
+        let t = Instant::now();
+        while service.counts() != (0, 0) {
+            assert!(t.elapsed() < Duration::from_secs(2), "still running");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+}
