@@ -10,7 +10,10 @@
 //! * [`solve`]: builds the core problem from a document, runs the solver from
 //!   the `ilqr` crate and produces the [`solve::SolveResult`] document.
 //! * [`schema`]: OpenAPI schemas utoipa cannot derive (nested fixed arrays).
-//! * [`server`]: the HTTP service (axum), its worker pool, errors and metrics.
+//! * [`service`]: the solve service every transport calls: validation,
+//!   admission against the expected wait, time budgets, the worker pool,
+//!   cancellation, draining and the solve metrics.
+//! * [`server`]: the HTTP service (axum) over it, its errors and metrics.
 //! * [`cli`]: the `ilqr-service` command line (`serve`, `solve`, `openapi`,
 //!   `healthcheck`).
 //!
@@ -22,4 +25,5 @@ pub mod models;
 pub mod problem;
 pub mod schema;
 pub mod server;
+pub mod service;
 pub mod solve;

@@ -42,6 +42,31 @@ fn serve_with(args: &[&str]) -> (Option<i32>, String) {
     (status.code(), stderr)
 }
 
+/// A port that is taken is an error that names the port and how to pick
+/// another (the default 8080 is often taken on a developer's machine),
+/// with exit status 1, at once.
+#[test]
+fn a_taken_port_names_the_flag_that_moves_the_service() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let bind = taken.local_addr().unwrap().to_string();
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["serve", "--bind", &bind, "--workers", "1"])
+        .stdout(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.starts_with(&format!("error: cannot listen on {bind}: address in use (")),
+        "{stderr}"
+    );
+    assert!(
+        stderr.ends_with("; pick another with --bind HOST:PORT (or ILQR_BIND)\n"),
+        "{stderr}"
+    );
+    drop(taken);
+}
+
 #[test]
 fn settings_out_of_range_are_rejected_before_serving() {
     for (args, says) in [
@@ -1058,6 +1083,51 @@ fn a_second_signal_ends_the_drain_at_once() {
     };
     assert_eq!(status.code(), Some(143));
     drop(clients);
+}
+
+/// With nothing in flight, SIGTERM ends the process at once with status 0,
+/// an idle keep-alive connection open or not: there is nothing to drain.
+#[test]
+fn an_idle_server_exits_on_sigterm_at_once() {
+    use std::io::{Read, Write};
+    use std::time::{Duration, Instant};
+    let (mut server, bind) = serve_on_free_port(|cmd, bind| {
+        cmd.args(["serve", "--bind", bind, "--workers", "1"])
+            .stdout(std::process::Stdio::null())
+            .stderr(std::process::Stdio::null());
+    });
+    // A solve answered on a connection that stays open, idle.
+    let mut idle = std::net::TcpStream::connect(&bind).unwrap();
+    write!(
+        idle,
+        "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
+         Content-Length: 2\r\n\r\n{{}}"
+    )
+    .unwrap();
+    let mut head = [0u8; 12];
+    idle.read_exact(&mut head).unwrap();
+    assert_eq!(&head, b"HTTP/1.1 200");
+    std::thread::sleep(Duration::from_millis(200));
+    let pid = server.0.id().to_string();
+    let sent = Instant::now();
+    assert!(
+        Command::new("kill")
+            .args(["-TERM", &pid])
+            .status()
+            .unwrap()
+            .success()
+    );
+    let status = loop {
+        if let Some(status) = server.0.try_wait().unwrap() {
+            break status;
+        }
+        assert!(
+            sent.elapsed() < Duration::from_millis(500),
+            "an idle server still running 0.5 s after SIGTERM"
+        );
+        std::thread::sleep(Duration::from_millis(5));
+    };
+    assert_eq!(status.code(), Some(0));
 }
 
 /// The image's version label is an `ARG` default in the Dockerfile (the

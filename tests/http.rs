@@ -747,24 +747,69 @@ async fn one_answer_lists_wrong_types_and_out_of_range_values() {
 }
 
 /// A body declared larger than the limit is refused from its headers, before
-/// any of it is sent (and before `Expect: 100-continue` is answered).
+/// any of it is sent (and before `Expect: 100-continue` is answered); a
+/// chunked one as soon as its chunk-size lines declare more than the limit,
+/// without waiting for the bytes or the read timeout, on the first request
+/// of a connection or a later one.
 #[tokio::test]
 async fn a_declared_oversized_body_is_refused_at_once() {
     use tokio::io::{AsyncReadExt, AsyncWriteExt};
     let s = Server::start(body_limit(4096)).await;
-    let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
-    sock.write_all(
-        b"POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n\
-          Content-Length: 100000000\r\nExpect: 100-continue\r\n\r\n",
-    )
-    .await
-    .unwrap();
-    let mut head = [0u8; 12];
-    tokio::time::timeout(Duration::from_secs(2), sock.read_exact(&mut head))
+    let head = "POST /solve HTTP/1.1\r\nHost: x\r\nContent-Type: application/json\r\n";
+    let small = r#"{"horizon": 20}"#;
+    for (first, rest) in [
+        (
+            String::new(),
+            "Content-Length: 100000000\r\nExpect: 100-continue\r\n\r\n",
+        ),
+        (
+            String::new(),
+            "Transfer-Encoding: chunked\r\n\r\nFFFFFF\r\n{\"horizon\"",
+        ),
+        // 4000 bytes declared, then 97 more: 4097, one past the limit.
+        (String::new(), "Transfer-Encoding: chunked\r\n\r\nfa0\r\n"),
+        // A first request on the same connection, chunked and within the
+        // limit, is answered; the second is refused.
+        (
+            format!(
+                "{head}Transfer-Encoding: chunked\r\n\r\n{:x}\r\n{small}\r\n0\r\n\r\n",
+                small.len()
+            ),
+            "Transfer-Encoding: chunked\r\n\r\n100000;x=y\r\n",
+        ),
+    ] {
+        let mut sock = tokio::net::TcpStream::connect(s.addr).await.unwrap();
+        let mut request = format!("{first}{head}{rest}").into_bytes();
+        if rest.ends_with("fa0\r\n") {
+            request.extend(std::iter::repeat_n(b' ', 4000));
+            request.extend_from_slice(b"\r\n61\r\n ");
+        }
+        sock.write_all(&request).await.unwrap();
+        let mut answers = Vec::new();
+        let mut buf = [0u8; 4096];
+        let expected = if first.is_empty() { 1 } else { 2 };
+        tokio::time::timeout(Duration::from_secs(2), async {
+            while answers.windows(9).filter(|w| *w == b"HTTP/1.1 ").count() < expected
+                || !answers.ends_with(b"}")
+            {
+                let n = sock.read(&mut buf).await.unwrap();
+                assert!(n > 0, "closed: {}", String::from_utf8_lossy(&answers));
+                answers.extend_from_slice(&buf[..n]);
+            }
+        })
         .await
-        .expect("answered without waiting for the body")
-        .unwrap();
-    assert_eq!(&head, b"HTTP/1.1 413");
+        .unwrap_or_else(|_| panic!("not answered at once: {rest:?}"));
+        let answers = String::from_utf8_lossy(&answers);
+        let last = answers.rsplit("HTTP/1.1 ").next().unwrap();
+        assert!(last.starts_with("413"), "{rest:?}: {answers}");
+        assert!(
+            last.contains("urn:ilqr-service:payload-too-large"),
+            "{answers}"
+        );
+        if !first.is_empty() {
+            assert!(answers.starts_with("HTTP/1.1 200"), "{answers}");
+        }
+    }
 }
 
 /// The bodies being received share a memory budget
@@ -834,7 +879,11 @@ async fn bodies_being_received_share_a_memory_budget() {
         );
     }
     assert_eq!(
-        counter(&s, "solve_rejections_total{reason=\"body_budget\"}").await,
+        counter(
+            &s,
+            "solve_rejections_total{reason=\"body_budget\",transport=\"http\"}"
+        )
+        .await,
         2.0
     );
 
@@ -947,7 +996,8 @@ fn server_timing(res: &reqwest::Response) -> std::collections::HashMap<String, f
 #[tokio::test]
 async fn a_client_that_disconnects_cancels_its_solve() {
     let s = Server::start(small(1, 0)).await;
-    let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let cancelled_before =
+        counter(&s, "solves_total{status=\"cancelled\",transport=\"http\"}").await;
     let left = "http_requests_total{route=\"/solve\",status=\"499\"}";
     let left_before = counter(&s, left).await;
     s.post_and_give_up(&slow(20_000)).await;
@@ -968,7 +1018,8 @@ async fn a_client_that_disconnects_cancels_its_solve() {
     }
     // The worker counted it as cancelled (the metrics recorder is shared by
     // every server in this process, hence the difference).
-    let cancelled_after = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let cancelled_after =
+        counter(&s, "solves_total{status=\"cancelled\",transport=\"http\"}").await;
     assert!(
         cancelled_after >= cancelled_before + 1.0,
         "{cancelled_before} -> {cancelled_after}"
@@ -987,7 +1038,8 @@ async fn a_client_that_disconnects_cancels_its_solve() {
 #[tokio::test]
 async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
     let s = Server::start(small(1, 1)).await;
-    let cancelled_before = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let cancelled_before =
+        counter(&s, "solves_total{status=\"cancelled\",transport=\"http\"}").await;
     let busy = s.spawn_post(slow(2000));
     tokio::time::sleep(Duration::from_millis(300)).await;
     s.post_and_give_up(&json!({})).await;
@@ -1007,36 +1059,109 @@ async fn a_client_that_leaves_the_queue_frees_its_slot_at_once() {
         t.elapsed() > Duration::from_millis(500),
         "it queued behind the busy worker"
     );
-    let cancelled_after = counter(&s, "solves_total{status=\"cancelled\"}").await;
+    let cancelled_after =
+        counter(&s, "solves_total{status=\"cancelled\",transport=\"http\"}").await;
     assert!(cancelled_after >= cancelled_before + 1.0);
     assert_eq!(busy.await.unwrap().status(), 200);
 }
 
-/// The budget runs from admission: a solve that waited in the queue for
-/// longer than its budget gets no iterations of its own, and says so, when
-/// its budget runs out, not when the solve ahead of it ends.
+/// The budget runs from admission: a solve whose budget runs out while it
+/// waits in the queue is answered then, 503 `expired-in-queue` with
+/// `Retry-After`, not when the solve ahead of it ends, and never runs: no
+/// 200 with the unimproved initial guess, and no worker time.
 #[tokio::test]
-async fn time_spent_queued_counts_against_the_budget() {
+async fn a_solve_whose_budget_runs_out_in_the_queue_is_answered_503_then() {
     let s = Server::start(small(1, 1)).await;
+    let expired = "solve_rejections_total{reason=\"expired_in_queue\",transport=\"http\"}";
+    let before = counter(&s, expired).await;
     let busy = s.spawn_post(slow(4000));
     tokio::time::sleep(Duration::from_millis(200)).await;
     let sent = Instant::now();
     let res = s.post(&slow(300)).await;
     let waited = sent.elapsed();
+    assert!(
+        res.headers()["retry-after"]
+            .to_str()
+            .unwrap()
+            .parse::<u64>()
+            .unwrap()
+            >= 1
+    );
+    let p = problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:expired-in-queue", "{p}");
+    assert!(p["retry_after"].as_u64().unwrap() >= 1, "{p}");
+    let detail = p["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("time budget of 300 ms ran out before it could start"),
+        "{detail}"
+    );
+    // Answered at its budget, not when the solve ahead ends (3.8 s later);
+    // a generous bound for CI.
+    assert!(
+        (Duration::from_millis(290)..Duration::from_millis(2000)).contains(&waited),
+        "{waited:?}"
+    );
+    // The worker is still busy with the first solve, so the queue slot
+    // came back when the expired solve was answered: another is admitted
+    // (and expires in turn).
+    let p = problem_of(s.post(&slow(50)).await, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:expired-in-queue", "{p}");
+    let r: Value = busy.await.unwrap().json().await.unwrap();
+    assert_eq!(r["status"], "time_limit");
+    assert!(r["iterations"].as_u64().unwrap() > 0);
+    assert!(counter(&s, expired).await >= before + 2.0);
+}
+
+/// Admission accounts for the wait: with the only worker busy for about
+/// another 0.8 s by the measured service time, a solve whose 500 ms budget
+/// would run out before it could start is refused at once, 503
+/// `overloaded` with `Retry-After`, while one whose budget covers the wait
+/// is queued and answered.
+#[tokio::test]
+async fn a_solve_that_could_not_start_within_its_budget_is_refused_at_once() {
+    let s = Server::start(small(1, 4)).await;
+    let refused = "solve_rejections_total{reason=\"queue_wait\",transport=\"http\"}";
+    let before = counter(&s, refused).await;
+    // One solve measures the service time: about 1 s.
+    assert_eq!(s.post(&slow(1000)).await.status(), 200);
+    let busy = s.spawn_post(slow(3000));
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let t = Instant::now();
+    let res = s.post(&slow(500)).await;
+    assert!(
+        t.elapsed() < Duration::from_millis(300),
+        "{:?}",
+        t.elapsed()
+    );
+    let retry: u64 = res.headers()["retry-after"]
+        .to_str()
+        .unwrap()
+        .parse()
+        .unwrap();
+    assert!(retry >= 1, "{retry}");
+    let p = problem_of(res, StatusCode::SERVICE_UNAVAILABLE).await;
+    assert_eq!(p["type"], "urn:ilqr-service:overloaded", "{p}");
+    assert_eq!(p["retry_after"], retry);
+    let detail = p["detail"].as_str().unwrap();
+    assert!(
+        detail.contains("the solves queued ahead would take about"),
+        "{detail}"
+    );
+    assert!(
+        detail.contains("too long for its time budget of 500 ms"),
+        "{detail}"
+    );
+    assert!(counter(&s, refused).await >= before + 1.0);
+    // A budget that covers the wait is admitted, and solved once the
+    // worker is free.
+    let res = s.post(&json!({"solver": {"time_limit_ms": 5000}})).await;
     assert_eq!(res.status(), 200);
     let r: Value = res.json().await.unwrap();
-    assert_eq!(r["status"], "time_limit");
-    assert_eq!(r["iterations"], 0);
-    let queued = r["queue_time_ms"].as_f64().unwrap();
-    assert!((300.0..2000.0).contains(&queued), "{queued}");
-    // The solve ahead runs for 3.8 s more; a generous bound for CI.
-    assert!(waited < Duration::from_millis(2000), "{waited:?}");
-    // The worker is still busy with the first solve, so the queue slot
-    // came back when the expired solve was answered: another fits.
-    assert_eq!(s.post(&slow(50)).await.status(), 200);
+    assert_eq!(r["status"], "converged");
     assert!(
-        r["cost"] == r["initial_cost"],
-        "the initial guess, unimproved"
+        r["queue_time_ms"].as_f64().unwrap() > 1000.0,
+        "{}",
+        r["queue_time_ms"]
     );
     assert_eq!(busy.await.unwrap().status(), 200);
 }
@@ -1126,9 +1251,9 @@ async fn metrics_count_requests_solves_and_rejections() {
     for needle in [
         "http_requests_total{route=\"/solve\",status=\"200\"}",
         "http_requests_total{route=\"/solve\",status=\"422\"}",
-        "solves_total{status=\"converged\"}",
-        "solve_rejections_total{reason=\"invalid\"}",
-        "solve_rejections_total{reason=\"malformed_json\"}",
+        "solves_total{status=\"converged\",transport=\"http\"}",
+        "solve_rejections_total{reason=\"invalid\",transport=\"http\"}",
+        "solve_rejections_total{reason=\"malformed_json\",transport=\"http\"}",
         "solve_queue_depth",
         "request_body_bytes_held",
         "solve_queue_wait_seconds_bucket",
@@ -1136,7 +1261,7 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_iterations_bucket",
         concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
         "http_request_duration_seconds_bucket{route=\"/solve\",le=\"0.001\"}",
-        "solve_duration_seconds_bucket{le=\"0.00075\"}",
+        "solve_duration_seconds_bucket{transport=\"http\",le=\"0.00075\"}",
         "solves_running",
         "solve_workers",
         "solve_queue_capacity",
@@ -1577,7 +1702,12 @@ async fn answers_waiting_for_slow_readers_are_bounded() {
     }
     // Counters are process-wide (tests run in parallel): compared, not
     // matched.
-    let rejected = || counter(&s, "solve_rejections_total{reason=\"answer_budget\"} ");
+    let rejected = || {
+        counter(
+            &s,
+            "solve_rejections_total{reason=\"answer_budget\",transport=\"http\"} ",
+        )
+    };
     let before = rejected().await;
     let p = problem_of(s.post(&large).await, StatusCode::SERVICE_UNAVAILABLE).await;
     assert_eq!(p["type"], "urn:ilqr-service:overloaded", "{p}");
@@ -1815,6 +1945,26 @@ async fn body_framing_and_coding_edge_cases() {
                 "{answer}"
             );
         }
+    }
+
+    // RFC 9112 §6.1: chunked is applied once. Twice (on one field line or
+    // two), hyper would undo one and pass the other on as the body.
+    for codings in [
+        "Transfer-Encoding: chunked, chunked\r\n",
+        "Transfer-Encoding: chunked\r\nTransfer-Encoding: CHUNKED\r\n",
+    ] {
+        let request = format!(
+            "POST /solve HTTP/1.1\r\nHost: x\r\nConnection: close\r\n\
+             Content-Type: application/json\r\n{codings}\r\n\
+             7\r\n2\r\n{{}}\r\n\r\n0\r\n\r\n"
+        );
+        let answer = raw_exchange(s.addr, request.as_bytes()).await;
+        assert!(answer.starts_with("HTTP/1.1 400"), "{codings}: {answer}");
+        assert!(
+            answer.contains("urn:ilqr-service:unreadable-body"),
+            "{answer}"
+        );
+        assert!(answer.contains("applies chunked 2 times"), "{answer}");
     }
 
     let answer = raw_exchange(

@@ -10,6 +10,12 @@
 //! past the cap is answered 503 `overloaded` with `Retry-After`, as a full
 //! solver queue is: the same back-pressure, for the same kind of client.
 //!
+//! A body over `--max-body-bytes` is refused 413 before it is read when it
+//! says so: by its `Content-Length`, or, chunked, by its chunk-size lines,
+//! which `chunks` reads off the wire as they arrive, so a client that
+//! declares a huge chunk and sends nothing more is not held until the read
+//! timeout.
+//!
 //! Bytes are counted as they arrive: a body holds the buffer it has grown
 //! into (doubling, up to its declared length), never more than twice what
 //! its client has sent. (Reserving a declared length up front let 16
@@ -42,6 +48,7 @@ use axum::extract::Request;
 use axum::http::header;
 use http_body_util::BodyExt;
 
+use super::chunks::Declared;
 use super::error::{ApiError, Overload};
 
 /// A count of bytes held against a limit, shared by threads: the bodies
@@ -192,6 +199,16 @@ pub(crate) async fn read_with<T>(
     }
     // hyper ends a body at its declared length.
     let ceiling = declared.unwrap_or(rules.limit);
+    // A chunked body is refused as soon as its chunks declare more than
+    // the limit, without waiting for the bytes (see `chunks`).
+    let chunks = req.extensions().get::<Declared>().cloned();
+    let declared_over = async {
+        match &chunks {
+            Some(chunks) => chunks.over(rules.limit).await,
+            None => std::future::pending().await,
+        }
+    };
+    let mut declared_over = std::pin::pin!(declared_over);
     let mut held = Held {
         budget: rules.budget,
         bytes: 0,
@@ -202,7 +219,13 @@ pub(crate) async fn read_with<T>(
     // otherwise hold its connection, its share of the budget and a
     // shutdown indefinitely.
     let read = async {
-        while let Some(frame) = body.frame().await {
+        loop {
+            let frame = tokio::select! {
+                biased;
+                () = &mut declared_over => return Err(ApiError::PayloadTooLarge(rules.limit)),
+                frame = body.frame() => frame,
+            };
+            let Some(frame) = frame else { break };
             let frame = frame.map_err(|e| {
                 if ended_by_client(&e) {
                     ApiError::ClientLeft

@@ -12,6 +12,7 @@ use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
 use crate::problem::{FieldError, Invalid};
+use crate::service::{OverloadCause, SolveError};
 
 /// Media type of problem documents.
 pub const PROBLEM_JSON: &str = "application/problem+json";
@@ -24,6 +25,8 @@ pub struct Problem {
     /// `request-timeout` (408), `payload-too-large` (413),
     /// `unsupported-media-type` (415), `not-found` (404),
     /// `method-not-allowed` (405), `overloaded` (503, retry after
+    /// `retry_after`), `expired-in-queue` (503: the time budget ran out
+    /// while the solve waited for a worker, nothing was solved; retry after
     /// `retry_after`), `shutting-down` (503, retry on another instance) or
     /// `internal` (500). A string, not an enum: kinds may be added.
     #[serde(rename = "type")]
@@ -50,8 +53,8 @@ pub struct Problem {
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(nullable = false, minimum = 1)]
     pub unlisted_errors: Option<u64>,
-    /// Seconds to wait before retrying (overload only; also sent as the
-    /// `Retry-After` header).
+    /// Seconds to wait before retrying (`overloaded` and
+    /// `expired-in-queue` only; also sent as the `Retry-After` header).
     #[serde(default, skip_serializing_if = "Option::is_none")]
     #[schema(nullable = false, minimum = 1)]
     pub retry_after: Option<u64>,
@@ -62,6 +65,14 @@ pub struct Problem {
 pub enum Overload {
     /// Every worker is busy and the queue is full.
     Queue,
+    /// The solves ahead in the queue would take longer, by the measured
+    /// service time, than the solve's budget allows it to wait.
+    Wait {
+        /// The estimated wait, in ms.
+        wait_ms: u64,
+        /// The solve's time budget, in ms.
+        budget_ms: u64,
+    },
     /// The bodies being read hold `--max-inflight-body-bytes`.
     Bodies,
     /// The answers being sent hold as many bytes (clients reading slowly
@@ -96,6 +107,16 @@ pub enum ApiError {
     /// The solver queue is full, or the request bodies being received take
     /// all of their memory budget (503 with `Retry-After`).
     Overloaded { retry_after: u64, cause: Overload },
+    /// Admitted, but the time budget ran out while the solve waited for a
+    /// worker, so nothing was solved (503 with `Retry-After`).
+    ExpiredInQueue {
+        /// Time it waited, in ms.
+        waited_ms: u64,
+        /// Its time budget, in ms.
+        budget_ms: u64,
+        /// Seconds to wait before retrying, at least 1.
+        retry_after: u64,
+    },
     /// The service is shutting down (503).
     ShuttingDown,
     /// A bug: a solver panic or a lost worker (500).
@@ -145,6 +166,11 @@ impl ApiError {
                 "overloaded",
                 "Service overloaded",
             ),
+            Self::ExpiredInQueue { .. } => (
+                StatusCode::SERVICE_UNAVAILABLE,
+                "expired-in-queue",
+                "Time budget spent in the queue",
+            ),
             Self::ClientLeft => (
                 StatusCode::from_u16(499).unwrap_or(StatusCode::BAD_REQUEST),
                 "client-left",
@@ -188,6 +214,10 @@ impl ApiError {
                 ..
             } => "queue_full",
             Self::Overloaded {
+                cause: Overload::Wait { .. },
+                ..
+            } => "queue_wait",
+            Self::Overloaded {
                 cause: Overload::Bodies,
                 ..
             } => "body_budget",
@@ -195,6 +225,7 @@ impl ApiError {
                 cause: Overload::Answers | Overload::AnswersFull,
                 ..
             } => "answer_budget",
+            Self::ExpiredInQueue { .. } => "expired_in_queue",
             Self::ClientLeft => "client_left",
             Self::ShuttingDown => "shutting_down",
             Self::Internal => "internal",
@@ -258,6 +289,12 @@ impl ApiError {
                     Overload::Queue => format!(
                         "every worker is busy and the queue is full; retry in {retry_after} s"
                     ),
+                    Overload::Wait { wait_ms, budget_ms } => format!(
+                        "the solves queued ahead would take about {wait_ms} ms (by the measured \
+                         time per solve) before a worker could start this one, too long for its \
+                         time budget of {budget_ms} ms; nothing was solved; retry in \
+                         {retry_after} s, or with a larger solver.time_limit_ms"
+                    ),
                     Overload::Bodies => format!(
                         "too many request bodies are being received at once; \
                          retry in {retry_after} s"
@@ -273,6 +310,19 @@ impl ApiError {
                          solved; retry in {retry_after} s"
                     ),
                 },
+                vec![],
+                Some(*retry_after),
+            ),
+            Self::ExpiredInQueue {
+                waited_ms,
+                budget_ms,
+                retry_after,
+            } => (
+                format!(
+                    "the solve waited {waited_ms} ms for a worker and its time budget of \
+                     {budget_ms} ms ran out before it could start (the solves ahead took longer \
+                     than estimated); nothing was solved; retry in {retry_after} s"
+                ),
                 vec![],
                 Some(*retry_after),
             ),
@@ -370,8 +420,45 @@ impl IntoResponse for ApiError {
             kind: problem.kind,
             title: self.parts().2,
             detail,
-            overloaded: matches!(self, Self::Overloaded { .. }),
+            overloaded: matches!(self, Self::Overloaded { .. } | Self::ExpiredInQueue { .. }),
         });
         res
+    }
+}
+
+/// Whole milliseconds of `d`, for a problem's detail.
+fn whole_ms(d: std::time::Duration) -> u64 {
+    u64::try_from(d.as_millis()).unwrap_or(u64::MAX)
+}
+
+impl From<SolveError> for ApiError {
+    fn from(e: SolveError) -> Self {
+        match e {
+            SolveError::Invalid(invalid) => Self::Validation(invalid),
+            SolveError::Overloaded { retry_after, cause } => Self::Overloaded {
+                retry_after,
+                cause: match cause {
+                    OverloadCause::QueueFull => Overload::Queue,
+                    OverloadCause::Wait { wait, budget } => Overload::Wait {
+                        wait_ms: whole_ms(wait),
+                        budget_ms: whole_ms(budget),
+                    },
+                    // The one check the HTTP transport passes
+                    // (`SolveRequest::refuse_if`): its answer budget.
+                    OverloadCause::Transport { .. } => Overload::AnswersFull,
+                },
+            },
+            SolveError::ExpiredInQueue {
+                waited,
+                budget,
+                retry_after,
+            } => Self::ExpiredInQueue {
+                waited_ms: whole_ms(waited),
+                budget_ms: whole_ms(budget),
+                retry_after,
+            },
+            SolveError::ShuttingDown => Self::ShuttingDown,
+            SolveError::Internal => Self::Internal,
+        }
     }
 }

@@ -8,23 +8,25 @@
 //!   panicked, and `499` for a request whose client left before its answer
 //!   (its solve counts as `cancelled` below). Not counted: what hyper
 //!   rejects before any route runs (400 for broken framing, 414, 431);
-//! * `solves_total{status}`, counter, by solve status (`converged`, …); a
-//!   solve withdrawn from the queue because its client left counts as
-//!   `cancelled`;
-//! * `solve_rejections_total{reason}`, counter, every `/solve` request that
-//!   got an error: `malformed_json`, `unsupported_media_type`, `too_large`,
-//!   `body_timeout`, `unreadable_body`, `invalid`, `queue_full`,
+//! * `solves_total{status, transport}`, counter, by solve status
+//!   (`converged`, …) and front end (`http`); a solve withdrawn from the
+//!   queue because its client left counts as `cancelled`;
+//! * `solve_rejections_total{reason, transport}`, counter, every `/solve`
+//!   request that got an error: `malformed_json`, `unsupported_media_type`,
+//!   `too_large`, `body_timeout`, `unreadable_body`, `invalid`,
+//!   `queue_full`, `queue_wait` (it could not have started within its
+//!   budget), `expired_in_queue` (its budget ran out while queued),
 //!   `body_budget` (the bodies being read hold
 //!   `--max-inflight-body-bytes`), `answer_budget` (the answers being sent
 //!   hold as many bytes: refused before solving when they hold all of it,
 //!   otherwise after), `shutting_down`, `internal` (a solver
 //!   panic);
 //! * `solve_queue_depth`, gauge: solves waiting for a worker;
-//! * `solves_running`, gauge: solves admitted and out of the queue: on a
-//!   worker, or, when their budget ran out in the queue, answered from the
-//!   initial guess on a thread of their own (they may wait for it, so this
-//!   can exceed `solve_workers`; read with `solve_queue_depth`, under one
-//!   lock);
+//! * `solves_running`, gauge: solves on a worker (read with
+//!   `solve_queue_depth`, under one lock);
+//! * `solve_worker_seconds_estimate`, gauge: the measured time a solve
+//!   holds a worker, from which admission estimates a new solve's wait
+//!   (see [`crate::service`]); absent until a solve has ended;
 //! * `solve_workers`, `solve_queue_capacity`, gauges: `--workers` and
 //!   `--queue-capacity`, so that a dashboard can show how full the pool is,
 //!   `(solves_running + solve_queue_depth) / (solve_workers +
@@ -33,7 +35,8 @@
 //!   against `--max-inflight-body-bytes`;
 //! * `answer_bytes_held`, gauge: bytes the answers being sent hold, against
 //!   a budget of the same size;
-//! * `solve_queue_wait_seconds`, `solve_duration_seconds`, histograms;
+//! * `solve_queue_wait_seconds{transport}`, `solve_duration_seconds{transport}`,
+//!   histograms;
 //! * `solve_iterations`, histogram;
 //! * `http_request_duration_seconds{route}`, histogram: from routing to
 //!   the answer's head (the body's transfer is not in it);
@@ -125,18 +128,20 @@ fn describe() {
     );
     describe_counter!(
         "solves_total",
-        "Solves ended, by solve status; one withdrawn from the queue because its client left counts as cancelled"
+        "Solves ended, by solve status and transport; one withdrawn from the queue because its client left counts as cancelled"
     );
     describe_counter!(
         "solve_rejections_total",
-        "POST /solve requests answered with an error, by reason"
+        "Solve requests answered with an error, by reason and transport"
     );
     describe_gauge!("solve_queue_depth", "Solves waiting for a worker");
-    describe_gauge!(
-        "solves_running",
-        "Solves out of the queue: on a worker, or (budget spent in the queue) answered from the guess on a thread of their own"
-    );
+    describe_gauge!("solves_running", "Solves on a worker");
     describe_gauge!("solve_workers", "Solver worker threads (--workers)");
+    describe_gauge!(
+        "solve_worker_seconds_estimate",
+        Unit::Seconds,
+        "Measured time a solve holds a worker (a moving average), from which admission estimates a new solve's wait"
+    );
     describe_gauge!(
         "solve_queue_capacity",
         "Solves that may wait for a worker (--queue-capacity)"

@@ -3,57 +3,48 @@
 //! # Mechanisms
 //!
 //! * **Admission.** `POST /solve` reads its body within a memory budget
-//!   shared by all bodies being read (`body`), validates the problem on the
-//!   async runtime (cheap), then hands it to the [`pool::Pool`]. An
-//!   exhausted budget or a full queue answers 503 with `Retry-After` at
-//!   once; nothing waits for bytes or a slot.
-//! * **Time budget.** Every solve gets `solver.time_limit_ms` or the
-//!   configured default; the solver checks it every iteration and every 128
-//!   knots inside its passes, and returns the best trajectory so far with
-//!   status `time_limit`. It runs from admission: a solve still queued when
-//!   it runs out is taken back from the queue and answered then, on a
-//!   blocking thread (a rollout of the initial guess, 0 iterations; at most
-//!   `workers` such runs at once), not when a worker gets to it behind
-//!   longer solves.
-//! * **Cancellation.** Each admitted solve has an `AtomicBool` the solver
-//!   polls with the budget. A guard owned by the request handler sets it when
-//!   the handler is dropped, which is what hyper does when the client
-//!   disconnects (or half-closes its socket: see the comment in [`run`]).
-//!   Shutdown sets every registered flag after the grace period.
+//!   shared by all bodies being read (`body`), parses it on the async
+//!   runtime (cheap), then hands the problem to the solve service
+//!   ([`crate::service`]), which validates, admits, queues, times, cancels
+//!   and drains solves for every transport. An exhausted body budget, a
+//!   full queue, or a queue too long for the solve's time budget answers
+//!   503 with `Retry-After` at once; nothing waits for bytes or a slot.
+//! * **Cancellation.** The handler owns its solve through the service's
+//!   guard: hyper drops the handler when the client disconnects (or
+//!   half-closes its socket: see the comment in [`run`]), which withdraws
+//!   the queued solve or cancels the running one.
 //! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers
 //!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
 //!   cancelled (a running one answers 200 with status `cancelled` and its
 //!   best trajectory so far; one still queued, which has computed nothing,
 //!   answers 503 `shutting-down`), then the server stops.
 //! * **CPU work stays on the pool.** A worker serialises its result and, if
-//!   the request's `Accept-Encoding` admits gzip, compresses it; the runtime
-//!   only moves bytes. So one runtime thread (the default up to 8 cores)
-//!   keeps `/healthz` answering in about a millisecond behind megabyte
-//!   answers, and takes few time slices from the solvers.
+//!   the request's `Accept-Encoding` admits gzip, compresses it (the
+//!   service runs the handler's encoder there); the runtime only moves
+//!   bytes. So one runtime thread (the default up to 8 cores) keeps
+//!   `/healthz` answering in about a millisecond behind megabyte answers,
+//!   and takes few time slices from the solvers.
 
 mod body;
+mod chunks;
 mod error;
 mod metrics;
-pub mod pool;
 mod routes;
 mod stall;
 
-use std::collections::HashMap;
 use std::future::Future;
 use std::io::{Read, Write};
 use std::net::SocketAddr;
-use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
-use std::sync::{Arc, Mutex};
+use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::net::TcpListener;
-use tokio::sync::Notify;
 
 pub use error::{ApiError, Overload, PROBLEM_JSON, Problem};
 pub use routes::{ApiDoc, app, openapi, openapi_json};
 
 use crate::problem::{DEFAULT_HORIZON, DEFAULT_MAX_HORIZON, Limits};
-use pool::Pool;
+use crate::service::{Settings, SolveService};
 
 /// Smallest `--max-body-bytes` accepted: room for the default problem
 /// with up to about 35 obstacles pretty-printed (0.87 KB with one), or
@@ -449,25 +440,18 @@ fn cores() -> usize {
     std::thread::available_parallelism().map_or(1, std::num::NonZeroUsize::get)
 }
 
-/// Shared state of the service.
+/// Shared state of the HTTP service.
 pub struct AppState {
     config: Config,
-    pool: Pool,
+    /// Admission, budgets, cancellation and draining of solves (shared with
+    /// any other transport).
+    service: Arc<SolveService>,
     /// Bytes of the request bodies being read, against
     /// `--max-inflight-body-bytes`.
     bodies: body::BodyBudget,
     /// Bytes of the answers being sent, against the same limit as the
     /// bodies (a budget of its own: see `stall`).
     answers: Arc<stall::AnswerBudget>,
-    /// Permits, one per worker, for running solves whose budget ran out
-    /// while queued (see `routes::solve`).
-    expired_lane: Arc<tokio::sync::Semaphore>,
-    draining: AtomicBool,
-    /// Cancellation flags of admitted solves, by admission number.
-    inflight: Mutex<HashMap<u64, Arc<AtomicBool>>>,
-    next_id: AtomicU64,
-    /// Signalled whenever an admitted solve finishes.
-    finished: Notify,
 }
 
 impl AppState {
@@ -477,90 +461,31 @@ impl AppState {
             .check()
             .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidInput, e))?;
         metrics::handle(); // install the recorder before anything records
-        let pool = Pool::new(config.workers(), config.queue_capacity)?;
+        let service = SolveService::new(Settings {
+            workers: config.workers(),
+            queue_capacity: config.queue_capacity,
+            limits: config.limits(),
+            default_time_limit: Some(Duration::from_millis(config.default_time_limit_ms)),
+            retry_after_secs: config.retry_after_secs,
+        })?;
         Ok(Arc::new(Self {
             bodies: body::BodyBudget::new(config.inflight_body_bytes()),
             answers: stall::AnswerBudget::new(config.inflight_body_bytes()),
-            expired_lane: Arc::new(tokio::sync::Semaphore::new(config.workers())),
             config,
-            pool,
-            draining: AtomicBool::new(false),
-            inflight: Mutex::new(HashMap::new()),
-            next_id: AtomicU64::new(0),
-            finished: Notify::new(),
+            service,
         }))
     }
 
-    fn is_draining(&self) -> bool {
-        self.draining.load(Ordering::SeqCst)
+    /// The solve service behind `/solve`, for another transport to share.
+    pub fn service(&self) -> &Arc<SolveService> {
+        &self.service
     }
 
-    fn inflight_count(&self) -> usize {
-        self.inflight.lock().map_or(0, |m| m.len())
-    }
-
-    /// Register a solve; the guard cancels and unregisters it when dropped.
-    fn admit(self: &Arc<Self>) -> InFlight {
-        let id = self.next_id.fetch_add(1, Ordering::Relaxed);
-        let flag = Arc::new(AtomicBool::new(false));
-        if let Ok(mut m) = self.inflight.lock() {
-            m.insert(id, Arc::clone(&flag));
-        }
-        InFlight {
-            state: Arc::clone(self),
-            id,
-            flag,
-        }
-    }
-
-    fn cancel_all(&self) {
-        if let Ok(m) = self.inflight.lock() {
-            for flag in m.values() {
-                flag.store(true, Ordering::SeqCst);
-            }
-        }
-    }
-
-    /// Stop admitting, wait up to the grace period for in-flight solves,
-    /// then cancel what is left.
+    /// Stop admitting solves, wait up to the grace period for those in
+    /// flight, then cancel what is left (see [`SolveService::drain`]).
     pub async fn drain(&self) {
-        self.draining.store(true, Ordering::SeqCst);
         let grace = Duration::from_secs(self.config.shutdown_grace_secs);
-        tracing::info!(inflight = self.inflight_count(), ?grace, "draining");
-        let wait = async {
-            loop {
-                let notified = self.finished.notified();
-                if self.inflight_count() == 0 {
-                    return;
-                }
-                notified.await;
-            }
-        };
-        if tokio::time::timeout(grace, wait).await.is_err() {
-            tracing::warn!(
-                inflight = self.inflight_count(),
-                "grace period over; cancelling in-flight solves"
-            );
-            self.cancel_all();
-        }
-    }
-}
-
-/// An admitted solve. Dropping it (the handler finished, or was dropped
-/// because the client went away) cancels the solve if it is still running.
-struct InFlight {
-    state: Arc<AppState>,
-    id: u64,
-    flag: Arc<AtomicBool>,
-}
-
-impl Drop for InFlight {
-    fn drop(&mut self) {
-        self.flag.store(true, Ordering::SeqCst);
-        if let Ok(mut m) = self.state.inflight.lock() {
-            m.remove(&self.id);
-        }
-        self.state.finished.notify_waiters();
+        self.service.drain(grace).await;
     }
 }
 
@@ -626,7 +551,20 @@ pub async fn run(
                     }
                 };
                 let _ = io.set_nodelay(true);
-                let service = TowerToHyperService::new(service.clone());
+                // What chunked bodies on this connection declare, for
+                // `body::read_with` (see `chunks`).
+                let watch = Arc::new(chunks::Watch::default());
+                let io = chunks::Sniff::new(io, Arc::clone(&watch));
+                let requests = chunks::Counter::default();
+                let service = TowerToHyperService::new(service.clone().map_request(
+                    move |mut req: axum::http::Request<hyper::body::Incoming>| {
+                        req.extensions_mut().insert(chunks::Declared {
+                            watch: Arc::clone(&watch),
+                            request: requests.next(),
+                        });
+                        req
+                    },
+                ));
                 let mut stop = stop_rx.clone();
                 connections.spawn(async move {
                     // `half_close` stays off (hyper's default): the end of
@@ -764,14 +702,14 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         .worker_threads(config.runtime_threads())
         .enable_all()
         .build()?;
-    runtime.block_on(async move {
+    let served = runtime.block_on(async move {
         // The state (its checks, the worker threads) before the socket, so
         // that "listening" is logged only by a server that can serve.
         let state = AppState::new(config)?;
         let config = &state.config;
-        let listener = TcpListener::bind(config.bind).await.map_err(|e| {
-            std::io::Error::new(e.kind(), format!("cannot listen on {}: {e}", config.bind))
-        })?;
+        let listener = TcpListener::bind(config.bind)
+            .await
+            .map_err(|e| std::io::Error::new(e.kind(), cannot_listen(config.bind, &e)))?;
         // The effective settings, whichever of flag, variable or default
         // each came from.
         tracing::info!(
@@ -791,7 +729,33 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
             "listening"
         );
         run(listener, state, shutdown_signal()).await
-    })
+    });
+    // Everything that must finish (the drain, the answers being written)
+    // has when `run` returns. Dropping the runtime would also wait for its
+    // blocking threads, such as a large body's parse still running for a
+    // client that left (`body::read_with`), before the process could exit.
+    runtime.shutdown_background();
+    served
+}
+
+/// Why the service cannot listen on `bind`, and, where another address
+/// would do, how to give one: the default port is often taken on a
+/// developer's machine.
+fn cannot_listen(bind: SocketAddr, e: &std::io::Error) -> String {
+    const PICK: &str = "pick another with --bind HOST:PORT (or ILQR_BIND)";
+    match e.kind() {
+        std::io::ErrorKind::AddrInUse => {
+            format!("cannot listen on {bind}: address in use ({e}); {PICK}")
+        }
+        std::io::ErrorKind::PermissionDenied => format!(
+            "cannot listen on {bind}: permission denied ({e}; ports below 1024 need \
+             privileges); {PICK}"
+        ),
+        std::io::ErrorKind::AddrNotAvailable => {
+            format!("cannot listen on {bind}: no such address on this machine ({e}); {PICK}")
+        }
+        _ => format!("cannot listen on {bind}: {e}"),
+    }
 }
 
 /// A panic's report goes through the log, in its format and in the span of

@@ -20,11 +20,11 @@ use utoipa_swagger_ui::SwaggerUi;
 
 use super::body::{BodyRules, read_with};
 use super::error::{ApiError, LoggedProblem, Overload, Problem};
-use super::pool::Ticket;
 use super::{AppState, metrics};
 use crate::problem::wire::{ProblemDoc, WeightsDoc};
 use crate::problem::{OutputSpec, ParseError, ProblemSpec, SolverSpec, clip, parse};
-use crate::solve::{SolveResult, Unsolvable, solve as run_solve};
+use crate::service::{SolveRequest, Transport, count_rejection};
+use crate::solve::SolveResult;
 
 /// The OpenAPI document's fixed parts; paths come from the router.
 #[derive(OpenApi)]
@@ -458,6 +458,9 @@ impl FromRequest<Arc<AppState>> for ProblemJson {
 
 async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec, ApiError> {
     let headers = req.headers();
+    if let Some(detail) = chunked_more_than_once(headers) {
+        return Err(ApiError::UnreadableBody(detail));
+    }
     unsupported_media_type(headers)
         .map_or(Ok(()), |detail| Err(ApiError::UnsupportedMediaType(detail)))?;
     let rules = BodyRules {
@@ -474,6 +477,33 @@ async fn read_problem(req: Request, state: &Arc<AppState>) -> Result<ProblemSpec
         )),
     })
     .await
+}
+
+/// Why the body's framing cannot be trusted when `Transfer-Encoding` names
+/// `chunked` more than once (`chunked, chunked`, or on two field lines):
+/// RFC 9112 §6.1 forbids a sender to apply it twice. hyper undoes one
+/// layer and passes the rest on as the body, where a proxy in front may
+/// have read the framing differently.
+fn chunked_more_than_once(headers: &HeaderMap) -> Option<String> {
+    let chunked = headers
+        .get_all(header::TRANSFER_ENCODING)
+        .iter()
+        .flat_map(|v| v.as_bytes().split(|&b| b == b','))
+        .filter(|c| c.trim_ascii().eq_ignore_ascii_case(b"chunked"))
+        .count();
+    (chunked > 1).then(|| {
+        let all: Vec<&[u8]> = headers
+            .get_all(header::TRANSFER_ENCODING)
+            .iter()
+            .map(HeaderValue::as_bytes)
+            .collect();
+        format!(
+            "its Transfer-Encoding applies chunked {chunked} times ({}), which RFC 9112 \
+             forbids (a sender applies it once); send it with `Transfer-Encoding: chunked` \
+             or a Content-Length",
+            shown(&all.join(&b", "[..]))
+        )
+    })
 }
 
 /// Why the body cannot be read as a problem, going by its headers (the
@@ -622,8 +652,11 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
 ///
 /// Every field is optional and defaults to the seed scenario, so `{}` solves
 /// the paper's problem. The solve runs on the worker pool within its time
-/// budget; how it ended is `status` in a 200 answer. Only invalid input is an
-/// error.
+/// budget, which runs from admission (time spent queued counts); how it
+/// ended is `status` in a 200 answer. Only invalid input is an error, and
+/// overload a 503: a solve that could not start before its budget is spent
+/// is refused at once, or, if its wait was underestimated, answered when
+/// its budget runs out in the queue.
 #[utoipa::path(
     post,
     path = "/solve",
@@ -632,17 +665,17 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
     responses(
         (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult,
             headers(("Server-Timing" = String, description = "Milliseconds spent queued, solving, and serialising plus compressing the answer (not covered by the time budget), e.g. `queue;dur=0.02, solve;dur=0.35, encode;dur=0.61`"))),
-        (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, connection lost)", body = Problem, content_type = "application/problem+json"),
+        (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, a Transfer-Encoding that applies `chunked` more than once, connection lost)", body = Problem, content_type = "application/problem+json"),
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),
-        (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "The body is over the size limit: refused before it is read when its Content-Length or, chunked, its chunk-size lines declare more", body = Problem, content_type = "application/problem+json"),
         (status = 415, description = "Content-Type is missing, given twice, not JSON (`application/json` or `application/*+json`) or names a charset other than UTF-8; or the body is compressed (a Content-Encoding other than `identity`, or a transfer coding before `chunked`)", body = Problem, content_type = "application/problem+json"),
         (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
         (status = 414, description = "A request target (path and query) of 65535 bytes or more: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 431, description = "More than 100 header fields, or a request head over about 400 KiB: answered by the HTTP layer with an empty body, then the connection closes"),
         (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
-        (status = 503, description = "Overloaded (`overloaded`, with Retry-After: the solver queue is full, the request bodies being received hold the server's memory budget for bodies, or the answers still being sent to slow readers hold the budget for answers: refused before solving when they hold all of it, otherwise the solve ran and its answer was dropped) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
-            headers(("Retry-After" = u64, description = "Seconds to wait before retrying: at least 1 (`--retry-after-secs`, default 1). Sent with `overloaded` only: a `shutting-down` answer has none and closes the connection (retry on a new one, which a load balancer sends to another instance)"))),
+        (status = 503, description = "Overloaded (`overloaded`, with Retry-After, refused at once and nothing solved unless said: the solver queue is full; the solves queued ahead would take longer, by the measured time per solve, than this solve's time budget allows it to wait; the request bodies being received hold the server's memory budget for bodies; or the answers still being sent to slow readers hold the budget for answers: refused before solving when they hold all of it, otherwise the solve ran and its answer was dropped), expired in the queue (`expired-in-queue`, with Retry-After: admitted, but its time budget ran out while it waited for a worker, because the solves ahead took longer than estimated; it never ran) or shutting down (`shutting-down`: also a solve still queued when the shutdown's grace period ends)", body = Problem, content_type = "application/problem+json",
+            headers(("Retry-After" = u64, description = "Whole seconds to wait before retrying, at least 1 (`--retry-after-secs`, default 1): for a solve that could not have started in time, or one that expired in the queue, how late it would start by the current queue, if that is more. Sent with `overloaded` and `expired-in-queue`: a `shutting-down` answer has none and closes the connection (retry on a new one, which a load balancer sends to another instance)"))),
     )
 )]
 async fn solve(
@@ -655,178 +688,51 @@ async fn solve(
     let gzip = headers
         .contains_key(header::ACCEPT_ENCODING)
         .then_some(st.config.gzip_level);
-    if st.is_draining() {
-        return Err(reject(ApiError::ShuttingDown));
-    }
-    spec.validate(&st.config.limits())
-        .map_err(|e| reject(ApiError::Validation(e)))?;
-
     // Answers to slow readers fill the budget for answers: nothing solved
-    // now could be sent, so say so before spending a solve on it.
-    if st.answers.is_full() {
+    // now could be sent, so the service refuses before spending a solve.
+    let answers = Arc::clone(&st.answers);
+    let request = SolveRequest::new(spec, Transport::Http)
+        .refuse_if("answer_budget", move || answers.is_full());
+    // Serialised and compressed on the worker: a long horizon's result is
+    // megabytes of JSON, CPU work the async runtime should not do. It comes
+    // after the budget (tens of ms at N = 10000, see docs/limits.md);
+    // Server-Timing reports it.
+    let solved = st
+        .service
+        .solve(request, move |r| Ok(encode(r.to_json()?, gzip)))
+        .await
+        .map_err(ApiError::from)?;
+    let timing = format!(
+        "queue;dur={}, solve;dur={}, encode;dur={}",
+        solved.queue_ms, solved.solve_ms, solved.encode_ms
+    );
+    let Encoded { bytes, gzip } = solved.answer;
+    let Ok(bytes) = st.answers.hold(bytes) else {
         return Err(reject(ApiError::Overloaded {
             retry_after: st.config.retry_after_secs,
-            cause: Overload::AnswersFull,
+            cause: Overload::Answers,
         }));
-    }
-    let guard = st.admit();
-    let cancel = Arc::clone(&guard.flag);
-    // The request span (and its request_id) follows the solve to the worker.
-    let span = tracing::Span::current();
-    let state = Arc::clone(&st);
-    // The budget runs from admission: time spent waiting for a worker is
-    // part of it, so a caller's deadline holds under load too.
-    let budget = spec.time_limit(Some(Duration::from_millis(st.config.default_time_limit_ms)));
-    let deadline = budget.and_then(|b| tokio::time::Instant::now().checked_add(b));
-    let ticket = st
-        .pool
-        .submit(move |waited| {
-            let _entered = span.enter();
-            // Cancelled by a shutdown before a worker took it. Nothing was
-            // computed, so the answer is 503 shutting-down, which says to
-            // retry elsewhere, rather than a 200 `cancelled` holding the
-            // initial guess. (A client that leaves withdraws its queued
-            // solve; one that leaves just as a worker takes it gets the
-            // solve's own `cancelled`, counted in solves_total.)
-            if cancel.load(std::sync::atomic::Ordering::SeqCst) && state.is_draining() {
-                return None;
-            }
-            let remaining = budget.map(|b| b.saturating_sub(waited));
-            let mut out = run_solve(&spec, remaining, &cancel);
-            // Recorded here, not in the handler, so solves whose client left
-            // are counted too.
-            if let Ok(r) = &mut out {
-                r.queue_time_ms = crate::solve::millis(waited);
-                ::metrics::counter!("solves_total", "status" => r.status.as_str()).increment(1);
-                ::metrics::histogram!("solve_duration_seconds").record(r.solve_time_ms / 1e3);
-                ::metrics::histogram!("solve_iterations").record(r.iterations as f64);
-                tracing::info!(
-                    // A target of its own, so that `RUST_LOG` can drop a
-                    // line per solve (about 1 MB/s at 3000 solves/s) and keep
-                    // the error lines.
-                    target: "ilqr_service::solves",
-                    // Not `status`: the access log's is the HTTP status, a
-                    // number, and one field of two types breaks typed log
-                    // stores.
-                    solve_status = r.status.as_str(),
-                    iterations = r.iterations,
-                    cost = r.cost,
-                    solve_ms = r.solve_time_ms,
-                    queue_ms = r.queue_time_ms,
-                    "solve finished"
-                );
-            }
-            // The client left (the flag is set by the handler's drop, or by
-            // a shutdown, which still answers): nobody reads the answer, and
-            // encoding a long horizon's would hold this worker for
-            // milliseconds more.
-            if cancel.load(std::sync::atomic::Ordering::SeqCst) && !state.is_draining() {
-                return None;
-            }
-            // Serialised and compressed here too: a long horizon's result
-            // is megabytes of JSON, CPU work the async runtime should not do.
-            // It comes after the budget (tens of ms at N = 10000, see
-            // README "Limits"); Server-Timing reports it.
-            Some(out.map(|r| {
-                let started = std::time::Instant::now();
-                r.to_json().map(|json| {
-                    let body = encode(json, gzip);
-                    let timing = format!(
-                        "queue;dur={}, solve;dur={}, encode;dur={}",
-                        r.queue_time_ms,
-                        r.solve_time_ms,
-                        crate::solve::millis(started.elapsed())
-                    );
-                    (body, timing)
-                })
-            }))
-        })
-        .map_err(|_| {
-            reject(ApiError::Overloaded {
-                retry_after: st.config.retry_after_secs,
-                cause: Overload::Queue,
-            })
-        })?;
-    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    let mut waiting = Waiting(ticket, tracing::Span::current());
-    let expiry = async {
-        match deadline {
-            Some(deadline) => tokio::time::sleep_until(deadline).await,
-            None => std::future::pending().await, // a budget past Instant's range
-        }
     };
-    let done = tokio::select! {
-        done = waiting.0.done() => done,
-        () = expiry => {
-            // The budget ran out while the solve waited for a worker:
-            // answer now, not when a worker gets to it (seconds later
-            // behind long solves). A blocking thread runs it; with no
-            // budget left it only rolls out the initial guess, and it holds
-            // its pool slot meanwhile. Already taken by a worker, it stops
-            // at its budget.
-            if let Some(job) = waiting.0.claim() {
-                // At most `workers` such runs at once, like solves: each
-                // takes a solve's memory (at N = 10000, 300 at once took
-                // 1.1 GB in a review before this bound). A client that
-                // leaves meanwhile drops `job`, which gives its slot back
-                // unrun.
-                let turn = Arc::clone(&st.expired_lane).acquire_owned().await;
-                drop(tokio::task::spawn_blocking(move || {
-                    let _turn = turn;
-                    job.run();
-                }));
-            }
-            waiting.0.done().await
-        }
-    };
-    ::metrics::gauge!("solve_queue_depth").set(st.pool.queue_depth() as f64);
-    drop(guard);
-    let done = done.ok_or_else(|| {
-        tracing::error!("solver worker dropped a job");
-        reject(ApiError::Internal)
-    })?;
-    ::metrics::histogram!("solve_queue_wait_seconds").record(done.queued.as_secs_f64());
-    match done.outcome {
-        Ok(None) => Err(reject(ApiError::ShuttingDown)),
-        Ok(Some(Ok(Ok((body, timing))))) => {
-            let gzip = body.gzip;
-            let Ok(bytes) = st.answers.hold(body.bytes) else {
-                return Err(reject(ApiError::Overloaded {
-                    retry_after: st.config.retry_after_secs,
-                    cause: Overload::Answers,
-                }));
-            };
-            let mut res = (
-                [
-                    (
-                        header::CONTENT_TYPE,
-                        HeaderValue::from_static("application/json"),
-                    ),
-                    (header::VARY, HeaderValue::from_static("accept-encoding")),
-                ],
-                axum::body::Body::from(bytes),
-            )
-                .into_response();
-            if gzip {
-                res.headers_mut()
-                    .insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
-            }
-            // Digits, letters and punctuation only: always a valid value.
-            if let Ok(timing) = HeaderValue::from_str(&timing) {
-                res.headers_mut().insert("server-timing", timing);
-            }
-            Ok(res)
-        }
-        Ok(Some(Ok(Err(e)))) => {
-            tracing::error!(error = %e, "result serialisation failed");
-            Err(reject(ApiError::Internal))
-        }
-        Ok(Some(Err(Unsolvable(field)))) => Err(reject(ApiError::Validation(field.into()))),
-        Err(panic) => {
-            tracing::error!(panic = %panic.0, "solver panicked");
-            Err(reject(ApiError::Internal))
-        }
+    let mut res = (
+        [
+            (
+                header::CONTENT_TYPE,
+                HeaderValue::from_static("application/json"),
+            ),
+            (header::VARY, HeaderValue::from_static("accept-encoding")),
+        ],
+        axum::body::Body::from(bytes),
+    )
+        .into_response();
+    if gzip {
+        res.headers_mut()
+            .insert(header::CONTENT_ENCODING, HeaderValue::from_static("gzip"));
     }
+    // Digits, letters and punctuation only: always a valid value.
+    if let Ok(timing) = HeaderValue::from_str(&timing) {
+        res.headers_mut().insert("server-timing", timing);
+    }
+    Ok(res)
 }
 
 /// Whether a request's `Accept-Encoding` admits gzip (RFC 9110 §12.5.3):
@@ -960,29 +866,14 @@ fn encode(json: Vec<u8>, level: Option<u32>) -> Encoded {
     }
 }
 
-/// A queued solve whose handler is waiting. If the handler is dropped first
-/// (the client disconnected) while the solve is still queued, the solve is
-/// withdrawn, its slot freed at once, and it is counted as cancelled.
-/// The span is the request's: a drop happens after the handler's future has
-/// been abandoned, outside it, and the log line must still carry the id.
-struct Waiting<T>(Ticket<T>, tracing::Span);
-
-impl<T> Drop for Waiting<T> {
-    fn drop(&mut self) {
-        let _in_request = self.1.enter();
-        if self.0.withdraw() {
-            ::metrics::counter!("solves_total", "status" => "cancelled").increment(1);
-            tracing::info!("client left while queued; solve withdrawn");
-        }
-    }
-}
-
-/// Count a rejected request by reason, and pass the error on.
+/// Count a request this transport refused itself (its body, its answer
+/// budget) by reason, and pass the error on. The solve service counts its
+/// own refusals.
 fn reject(e: ApiError) -> ApiError {
     // A client that left is counted as status 499 in http_requests_total,
     // as when it leaves during its solve; nothing was answered to reject.
     if e != ApiError::ClientLeft {
-        ::metrics::counter!("solve_rejections_total", "reason" => e.reason()).increment(1);
+        count_rejection(Transport::Http, e.reason());
     }
     e
 }
@@ -1116,7 +1007,7 @@ async fn healthz() -> Json<Health> {
     )
 )]
 async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiError> {
-    if st.is_draining() {
+    if !st.service.is_ready() {
         Err(ApiError::ShuttingDown)
     } else {
         Ok(Json(Health { status: "ready" }))
@@ -1131,11 +1022,15 @@ async fn readyz(State(st): State<Arc<AppState>>) -> Result<Json<Health>, ApiErro
     responses((status = 200, description = "Prometheus text format", body = String, content_type = "text/plain"))
 )]
 async fn metrics_text(State(st): State<Arc<AppState>>) -> Response {
-    let (running, waiting) = st.pool.counts();
+    let service = &st.service;
+    let (running, waiting) = service.counts();
     ::metrics::gauge!("solve_queue_depth").set(waiting as f64);
     ::metrics::gauge!("solves_running").set(running as f64);
-    ::metrics::gauge!("solve_workers").set(st.pool.workers() as f64);
-    ::metrics::gauge!("solve_queue_capacity").set(st.pool.capacity() as f64);
+    ::metrics::gauge!("solve_workers").set(service.workers() as f64);
+    ::metrics::gauge!("solve_queue_capacity").set(service.queue_capacity() as f64);
+    if let Some(held) = service.service_time() {
+        ::metrics::gauge!("solve_worker_seconds_estimate").set(held.as_secs_f64());
+    }
     ::metrics::gauge!("request_body_bytes_held").set(st.bodies.used() as f64);
     ::metrics::gauge!("answer_bytes_held").set(st.answers.used() as f64);
     let mut body = metrics::handle().render();
