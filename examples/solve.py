@@ -1,13 +1,15 @@
 #!/usr/bin/env python3
-"""Solve the seed problem over HTTP and fly its feedback policy from a perturbed start.
+"""Solve a problem over HTTP and fly its feedback policy from a perturbed start.
 
 The service returns, besides the optimised trajectory (x̄_k, ū_k), the
 time-varying feedback gains K_k of the last backward pass. This script
 
-1. solves ``examples/seed.json`` (or the problem file given) with
-   :class:`ilqr_client.Client` and prints status, cost and iterations;
-2. simulates the quadrotor itself (explicit Euler, the same model the
-   service uses) from a perturbed initial state, twice:
+1. solves ``examples/seed.json`` (or the problem file given, of the planar
+   quadrotor or the unicycle) with :class:`ilqr_client.Client` and prints
+   status, cost and iterations;
+2. simulates the vehicle itself (the same model and integrator, explicit
+   Euler or RK4, that the service used) from a perturbed initial state,
+   twice:
 
    * open loop:   u_k = ū_k
    * closed loop: u_k = ū_k + K_k (x_k − x̄_k)
@@ -19,6 +21,7 @@ Usage (with a service running; see ``README.md`` for how to start one)::
     pip install ./clients/python
     ILQR_URL=http://127.0.0.1:8080 python3 examples/solve.py
     python3 examples/solve.py examples/three_obstacles.json --perturb 0.3 -0.2 0.05
+    python3 examples/solve.py examples/unicycle.json
 
 Exit status: 0 on success, 2 if the service rejected the problem
 (``ValidationError``), 3 if it stayed overloaded (``OverloadedError``),
@@ -33,7 +36,7 @@ import math
 import os
 import sys
 from pathlib import Path
-from typing import List, Sequence
+from typing import Callable, Dict, List, Mapping, Sequence
 
 HERE = Path(__file__).resolve().parent
 
@@ -50,14 +53,16 @@ State = List[float]
 
 
 # --------------------------------------------------------------------------- #
-# The planar quadrotor, written out here independently of the service
+# The models and integrators, written out here independently of the service
 # --------------------------------------------------------------------------- #
 
+Derivative = Callable[[Sequence[float], Sequence[float], Mapping[str, float]], State]
 
-def derivative(x: Sequence[float], u: Sequence[float], model: dict) -> State:
+
+def quadrotor(x: Sequence[float], u: Sequence[float], p: Mapping[str, float]) -> State:
     """ẋ = f(x, u) for the state [x, y, θ, ẋ, ẏ, θ̇] and rotor thrusts [u1, u2]."""
-    m, inertia = model["mass"], model["inertia"]
-    r, g = model["arm_length"], model["gravity"]
+    m, inertia = p["mass"], p["inertia"]
+    r, g = p["arm_length"], p["gravity"]
     thrust = u[0] + u[1]
     return [
         x[3],
@@ -69,12 +74,35 @@ def derivative(x: Sequence[float], u: Sequence[float], model: dict) -> State:
     ]
 
 
-def euler_step(x: Sequence[float], u: Sequence[float], model: dict, dt: float) -> State:
+def unicycle(x: Sequence[float], u: Sequence[float], p: Mapping[str, float]) -> State:
+    """ẋ = f(x, u) for the state [x, y, θ] and controls [v, ω]."""
+    return [u[0] * math.cos(x[2]), u[0] * math.sin(x[2]), u[1]]
+
+
+MODELS: Dict[str, Derivative] = {"quadrotor_2d": quadrotor, "unicycle": unicycle}
+
+
+def euler(f: Derivative, x: Sequence[float], u: Sequence[float], p: Mapping[str, float], dt: float) -> State:
     """x_{k+1} = x_k + dt · f(x_k, u_k)."""
-    return [xi + dt * fi for xi, fi in zip(x, derivative(x, u, model))]
+    return [xi + dt * fi for xi, fi in zip(x, f(x, u, p))]
 
 
-def rollout(result: SolveResult, x0: Sequence[float], model: dict, dt: float,
+def rk4(f: Derivative, x: Sequence[float], u: Sequence[float], p: Mapping[str, float], dt: float) -> State:
+    """The classical Runge–Kutta step, u held over the step."""
+    def shifted(k: State, h: float) -> State:
+        return [xi + h * ki for xi, ki in zip(x, k)]
+
+    k1 = f(x, u, p)
+    k2 = f(shifted(k1, dt / 2), u, p)
+    k3 = f(shifted(k2, dt / 2), u, p)
+    k4 = f(shifted(k3, dt), u, p)
+    return [xi + dt / 6 * (a + 2 * b + 2 * c + d) for xi, a, b, c, d in zip(x, k1, k2, k3, k4)]
+
+
+INTEGRATORS = {"euler": euler, "rk4": rk4}
+
+
+def rollout(result: SolveResult, x0: Sequence[float], step: Callable[[Sequence[float], Sequence[float]], State],
             closed_loop: bool) -> List[State]:
     """Simulate N steps from x0, applying ū_k (open loop) or ū_k + K_k (x_k − x̄_k)."""
     if closed_loop and result.gains is None:
@@ -83,13 +111,8 @@ def rollout(result: SolveResult, x0: Sequence[float], model: dict, dt: float,
     for k, u_bar in enumerate(result.controls):
         x = states[-1]
         u = result.gains.control(k, x, result.states[k], u_bar) if closed_loop else u_bar
-        states.append(euler_step(x, u, model, dt))
+        states.append(step(x, u))
     return states
-
-
-def miss(state: Sequence[float], goal: Sequence[float]) -> float:
-    """Distance (m) between a state's position and the goal position."""
-    return math.hypot(state[0] - goal[0], state[1] - goal[1])
 
 
 # --------------------------------------------------------------------------- #
@@ -103,7 +126,8 @@ def main() -> int:
                         help="service base URL (default: $ILQR_URL or http://127.0.0.1:8080)")
     parser.add_argument("--perturb", nargs=3, type=float, metavar=("DX", "DY", "DTHETA"),
                         default=(0.3, -0.2, 0.05),
-                        help="offset of the initial x [m], y [m] and θ [rad] (default: 0.3 -0.2 0.05)")
+                        help="offset of the initial position x [m], y [m] and heading or attitude θ [rad] "
+                             "(default: 0.3 -0.2 0.05)")
     args = parser.parse_args()
 
     try:
@@ -118,11 +142,16 @@ def main() -> int:
     # Gains are needed for the closed loop; the trace is not.
     problem["output"] = {"gains": True, "trace": False}
 
+    given_model = problem.get("model") or {}
+    model_type = given_model.get("type", "quadrotor_2d") if isinstance(given_model, dict) else "quadrotor_2d"
     with Client(args.url, timeout=(5.0, 70.0), retries=3) as client:
         try:
-            # The service's defaults, for the fields the file leaves out
-            # (the local simulation needs the model, dt and goal).
-            defaults = client.default_problem()
+            # What the service says of the model (the order of its state
+            # and where its position is), and its defaults for the fields
+            # the file leaves out (the local simulation needs the
+            # parameters, dt, the integrator and the goal).
+            info = {m.type: m for m in client.models()}.get(model_type)
+            defaults = client.default_problem(model=model_type) if info is not None else None
             result = client.solve(problem)
         except ValidationError as err:
             print(f"the service rejected {args.problem}:", file=sys.stderr)
@@ -140,32 +169,49 @@ def main() -> int:
             print(f"cannot reach {args.url}: {exc}", file=sys.stderr)
             return 1
 
-        model = {**defaults.model.to_dict(), **problem.get("model", {})}
-        dt = problem.get("dt", defaults.dt)
-        goal = problem.get("goal_state", defaults.goal_state)
-
         print(f"problem     {args.problem}")
+        print(f"model       {result.model}, {result.integrator} integrator")
         print(f"status      {result.status}")
         print(f"cost        {result.cost:.6f} (initial {result.initial_cost:.6f})")
         print(f"iterations  {result.iterations}")
         print(f"solve time  {result.solve_time_ms:.2f} ms, request id {result.request_id}")
 
-        # Replaying ū_k from the nominal x0 must reproduce the service's trajectory.
-        replay = rollout(result, result.states[0], model, dt, closed_loop=False)
-        drift = max(abs(a - b) for xa, xb in zip(replay, result.states) for a, b in zip(xa, xb))
-        print(f"replay      max |x_k - x̄_k| = {drift:.2e} (local Euler vs service)")
+        derivative = MODELS.get(result.model or "")
+        integrate = INTEGRATORS.get(result.integrator or "")
+        if info is None or defaults is None or derivative is None or integrate is None:
+            print(f"\n(no local simulation of model {result.model!r} with {result.integrator!r})")
+        else:
+            assert defaults.model is not None and defaults.dt is not None
+            parameters = {**defaults.model.parameters, **{k: v for k, v in given_model.items() if k != "type"}}
+            dt = problem.get("dt", defaults.dt)
+            goal = problem.get("goal_state", defaults.goal_state)
+            ix, iy = info.position
+            names = [q.name for q in info.state]
+            itheta = names.index("θ")
 
-        dx, dy, dtheta = args.perturb
-        x0 = list(result.states[0])
-        x0[0] += dx
-        x0[1] += dy
-        x0[2] += dtheta
-        open_loop = rollout(result, x0, model, dt, closed_loop=False)
-        closed_loop = rollout(result, x0, model, dt, closed_loop=True)
-        print(f"\nperturbed start: dx = {dx:+g} m, dy = {dy:+g} m, dθ = {dtheta:+g} rad")
-        print(f"  nominal      final miss {miss(result.states[-1], goal):8.4f} m")
-        print(f"  open loop    final miss {miss(open_loop[-1], goal):8.4f} m   (u = ū)")
-        print(f"  closed loop  final miss {miss(closed_loop[-1], goal):8.4f} m   (u = ū + K (x − x̄))")
+            def step(x: Sequence[float], u: Sequence[float]) -> State:
+                return integrate(derivative, x, u, parameters, dt)
+
+            def miss(state: Sequence[float]) -> float:
+                """Distance (m) between a state's position and the goal position."""
+                return math.hypot(state[ix] - goal[ix], state[iy] - goal[iy])
+
+            # Replaying ū_k from the nominal x0 must reproduce the service's trajectory.
+            replay = rollout(result, result.states[0], step, closed_loop=False)
+            drift = max(abs(a - b) for xa, xb in zip(replay, result.states) for a, b in zip(xa, xb))
+            print(f"replay      max |x_k - x̄_k| = {drift:.2e} (local {result.integrator} vs service)")
+
+            dx, dy, dtheta = args.perturb
+            x0 = list(result.states[0])
+            x0[ix] += dx
+            x0[iy] += dy
+            x0[itheta] += dtheta
+            open_loop = rollout(result, x0, step, closed_loop=False)
+            closed_loop = rollout(result, x0, step, closed_loop=True)
+            print(f"\nperturbed start: dx = {dx:+g} m, dy = {dy:+g} m, dθ = {dtheta:+g} rad")
+            print(f"  nominal      final miss {miss(result.states[-1]):8.4f} m")
+            print(f"  open loop    final miss {miss(open_loop[-1]):8.4f} m   (u = ū)")
+            print(f"  closed loop  final miss {miss(closed_loop[-1]):8.4f} m   (u = ū + K (x − x̄))")
 
         # What an invalid problem looks like: a ValidationError with a JSON pointer per field.
         try:

@@ -39,7 +39,7 @@ solve() {
 # Print the answer in $tmp/answer.json: a summary with jq, else the raw JSON.
 show() {
     if $have_jq; then
-        jq '{status, cost, initial_cost, iterations, goal_distance, closest_approach,
+        jq '{model, integrator, status, cost, initial_cost, iterations, goal_distance, closest_approach,
              solve_time_ms, queue_time_ms,
              steps: (.controls | length),
              gains: (.gains != null),
@@ -87,6 +87,24 @@ echo "answer size: $(wc -c < "$tmp/answer.json") bytes, against $full_size with 
 
 section "POST /solve with examples/three_obstacles.json"
 solve "@$here/three_obstacles.json"
+show
+
+section "GET /models (each model's state, controls and parameters)"
+curl -sS --fail "$ILQR_URL/models" -o "$tmp/models.json"
+if $have_jq; then
+    jq -c '.models[] | {type, state: [.state[].name], control: [.control[].name],
+                        parameters: [.parameters[].name], position}' "$tmp/models.json"
+else
+    head -c 600 "$tmp/models.json"
+    echo " ... (install jq for a summary)"
+fi
+
+section "POST /solve with examples/unicycle.json (the unicycle, RK4)"
+solve "@$here/unicycle.json"
+show
+
+section "POST /solve with {\"model\": {\"type\": \"unicycle\"}} (the unicycle's default problem)"
+solve '{"model": {"type": "unicycle"}}'
 show
 
 section "An invalid problem: 422 with an application/problem+json body, one JSON pointer per bad field"

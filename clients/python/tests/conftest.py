@@ -162,6 +162,14 @@ def seed_result(service: ServiceProcess) -> SolveResult:
         return c.solve({})
 
 
+@pytest.fixture(scope="session")
+def unicycle_result(service: ServiceProcess) -> SolveResult:
+    """The answer to ``POST /solve {"model": {"type": "unicycle"}}``: the
+    unicycle's default problem, solved once for the tests that only read it."""
+    with Client(service.url) as c:
+        return c.solve({"model": {"type": "unicycle"}})
+
+
 def busy_problem(time_limit_ms: int) -> Dict[str, Any]:
     """A problem that keeps a worker busy for about ``time_limit_ms``.
 

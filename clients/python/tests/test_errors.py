@@ -405,6 +405,8 @@ def _answer_of(result: SolveResult) -> Dict[str, Any]:
     """The JSON answer a result was parsed from (its members, as the service writes them)."""
     assert result.gains is not None and result.trace is not None
     return {
+        "model": result.model,
+        "integrator": result.integrator,
         "status": result.status,
         "cost": result.cost,
         "initial_cost": result.initial_cost,

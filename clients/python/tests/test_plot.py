@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+import math
 import sys
 from pathlib import Path
 from typing import Any
 
 import pytest
-from ilqr_client import Problem, SolveResult
+from ilqr_client import Client, Model, Problem, SolveResult
 from ilqr_client.plot import plot_cost, plot_solution, save_figure
 
 
@@ -63,6 +64,62 @@ def test_plot_solution_labels_an_obstacle_without_a_weight_with_the_default(seed
     ax = figure.subplots()
     plot_solution(seed_result, {"obstacles": [{"center": [4.5, 4.5]}]}, ax=ax)
     assert [text.get_text() for text in ax.texts] == ["q=1000"]
+
+
+def test_plot_solution_draws_a_unicycle_path(unicycle_result: SolveResult, figure: Any) -> None:
+    ax = figure.subplots()
+    plot_solution(unicycle_result, Problem(model=Model("unicycle")), ax=ax)
+    lines = {line.get_label(): line for line in ax.lines}
+    path = lines["trajectory"]
+    assert list(path.get_xdata()) == [state[0] for state in unicycle_result.states]
+    assert list(path.get_ydata()) == [state[1] for state in unicycle_result.states]
+    # The unicycle's defaults: goal (4, 0), one obstacle at (2, 0.3) of weight 50.
+    assert (list(lines["goal"].get_xdata()), list(lines["goal"].get_ydata())) == ([4.0], [0.0])
+    circles = [patch for patch in ax.patches if hasattr(patch, "get_radius")]
+    assert len(circles) == 1 and tuple(circles[0].center) == (2.0, 0.3)
+    assert circles[0].get_radius() == pytest.approx(unicycle_result.closest_approach[0])
+    assert [text.get_text() for text in ax.texts] == ["q=50"]
+    # Heading arrows along θ, the third state entry.
+    (arrows,) = [c for c in ax.collections if c.get_label() == "heading"]
+    assert len(arrows.U) == len(unicycle_result.states[::5]) == 13
+    theta = unicycle_result.states[5][2]
+    assert math.atan2(arrows.V[1], arrows.U[1]) == pytest.approx(math.atan2(math.sin(theta), math.cos(theta)))
+    assert ax.get_title().startswith("unicycle: converged")
+
+
+def test_plot_solution_reads_the_position_entries(unicycle_result: SolveResult, figure: Any) -> None:
+    # A model with its position elsewhere in the state (GET /models says
+    # where): the path and the goal are read from those entries.
+    import dataclasses
+
+    swapped = dataclasses.replace(unicycle_result, model_position=(1, 0))
+    ax = figure.subplots()
+    plot_solution(swapped, {"model": {"type": "unicycle"}, "goal_state": [1.0, 2.0, 0.0]}, ax=ax)
+    lines = {line.get_label(): line for line in ax.lines}
+    assert list(lines["trajectory"].get_xdata()) == [state[1] for state in unicycle_result.states]
+    assert (list(lines["goal"].get_xdata()), list(lines["goal"].get_ydata())) == ([2.0], [1.0])
+
+
+def test_the_plot_s_defaults_are_the_service_s(client: Client) -> None:
+    # plot_solution draws a problem's omitted goal and obstacles from its
+    # own table of the built-in models' defaults: it must match the service.
+    from ilqr_client.plot import _DEFAULTS
+
+    infos = client.models()
+    assert sorted(_DEFAULTS) == sorted(info.type for info in infos)
+    for info in infos:
+        problem = info.default_problem
+        goal, obstacles = _DEFAULTS[info.type]
+        assert problem.goal_state == list(goal), info.type
+        assert problem.obstacles is not None
+        assert [(tuple(o.center), o.weight) for o in problem.obstacles] == list(obstacles), info.type
+
+
+def test_save_figure_of_a_unicycle(unicycle_result: SolveResult, tmp_path: Path) -> None:
+    pytest.importorskip("matplotlib")
+    path = tmp_path / "unicycle.png"
+    save_figure(unicycle_result, {"model": {"type": "unicycle"}}, path)
+    assert path.read_bytes().startswith(b"\x89PNG")
 
 
 def test_plot_cost_is_log_scale(seed_result: SolveResult, figure: Any) -> None:

@@ -336,7 +336,7 @@ def test_a_result_shows_as_one_short_line(seed_result: SolveResult) -> None:
     # The generated repr printed every array: 50 KB for the seed.
     text = repr(seed_result)
     assert len(text) < 600 and "\n" not in text, text
-    assert text.startswith("SolveResult(status='converged', cost=5520.21")
+    assert text.startswith("SolveResult(model='quadrotor_2d', integrator='euler', status='converged', cost=5520.21")
     assert "horizon=100" in text and "gains=<100 knots>" in text
     assert seed_result.trace is not None and f"trace=<{len(seed_result.trace)} rows>" in text
 

@@ -10,7 +10,7 @@ from __future__ import annotations
 import inspect
 import json
 import typing
-from typing import List
+from typing import List, Optional
 
 import pytest
 from ilqr_client import (
@@ -18,8 +18,11 @@ from ilqr_client import (
     FloatRows,
     Floats,
     Gains,
+    Model,
+    ModelInfo,
     Obstacle,
     Problem,
+    QuadrotorModel,
     SolveResult,
     TraceEntry,
     Weights,
@@ -64,6 +67,25 @@ def test_numpy_arrays_in_every_vector_and_matrix_field_become_plain_json() -> No
     assert to_json_value([1.0, np.float32(2.0)]) == [1.0, 2.0]
 
 
+def test_a_unicycle_problem_of_numpy_arrays_and_a_warm_start_type_checks() -> None:
+    # Vectors as long as the model's state (3) and controls (2); a warm
+    # start from a dict. mypy --strict checks this file.
+    problem = Problem(
+        model=Model("unicycle"),
+        integrator="rk4",
+        initial_state=np.zeros(3),
+        goal_state=np.array([4.0, 0.0, 0.0]),
+        weights=Weights(state=np.ones(3), control=np.ones(2), terminal=np.full(3, 1e3)),
+        warm_start={"controls": np.full((60, 2), 0.5).tolist(), "model": "unicycle"},
+    )
+    doc = problem.to_dict()
+    assert json.loads(json.dumps(doc, allow_nan=False)) == doc
+    assert doc["model"] == {"type": "unicycle"} and doc["weights"]["terminal"] == [1e3] * 3
+    quadrotor = QuadrotorModel(mass=2.0)
+    mass: Optional[float] = quadrotor.mass
+    assert mass == 2.0
+
+
 def test_the_feedback_policy_takes_numpy_states() -> None:
     gains = Gains(
         feedback=[[[1.0, 0, 0, 0, 0, 0], [0, 2.0, 0, 0, 0, 0]]],
@@ -78,7 +100,7 @@ def test_type_hints_resolve_at_run_time() -> None:
     # Tools that read field annotations at run time (typing.get_type_hints,
     # dataclass introspection) need every alias defined there. At run time
     # the aliases say Sequence; numpy arrays are accepted all the same.
-    for cls in (Problem, Weights, Obstacle, Gains, SolveResult):
+    for cls in (Problem, Weights, Obstacle, Gains, SolveResult, Model, ModelInfo):
         hints = typing.get_type_hints(cls)
         assert hints, cls
     assert typing.get_type_hints(Problem)["initial_controls"] == typing.Optional[FloatRows]

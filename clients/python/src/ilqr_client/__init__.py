@@ -1,4 +1,5 @@
-"""Python client for ilqr-service, a 2-D quadrotor trajectory optimiser (iLQR) over HTTP.
+"""Python client for ilqr-service, a trajectory optimiser (iLQR) over HTTP for a
+planar quadrotor, a unicycle, or any other model the service offers.
 
 Quick start::
 
@@ -7,6 +8,7 @@ Quick start::
     with Client("http://127.0.0.1:8080") as client:
         result = client.solve({"horizon": 80, "goal_state": [3, 8, 0, 0, 0, 0]})
         print(result.status, result.cost, len(result.states))
+        unicycle = client.solve({"model": {"type": "unicycle"}})
 
 Modules:
 
@@ -34,14 +36,19 @@ from .errors import (
     ValidationError,
 )
 from .models import (
+    DEFAULT_MODEL,
     SOLVE_STATUSES,
     FloatRows,
     Floats,
     Gains,
+    Model,
+    ModelInfo,
     Obstacle,
     OutputOptions,
+    ParameterInfo,
     Problem,
     QuadrotorModel,
+    QuantityInfo,
     SolveResult,
     SolverOptions,
     TraceEntry,
@@ -54,7 +61,9 @@ __all__ = [
     "ProblemLike",
     # models
     "SOLVE_STATUSES",
+    "DEFAULT_MODEL",
     "Problem",
+    "Model",
     "QuadrotorModel",
     "Weights",
     "Obstacle",
@@ -63,6 +72,9 @@ __all__ = [
     "SolveResult",
     "Gains",
     "TraceEntry",
+    "ModelInfo",
+    "QuantityInfo",
+    "ParameterInfo",
     "Floats",
     "FloatRows",
     # errors

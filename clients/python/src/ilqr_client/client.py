@@ -2,9 +2,9 @@
 
 :class:`Client` wraps one :class:`requests.Session` and exposes the API as
 typed methods: :meth:`Client.solve`, :meth:`Client.default_problem`,
-:meth:`Client.health` and :meth:`Client.ready`.
+:meth:`Client.models`, :meth:`Client.health` and :meth:`Client.ready`.
 
-Retry policy (for ``solve`` and ``default_problem``; ``retries`` extra
+Retry policy (for ``solve``, ``default_problem`` and ``models``; ``retries`` extra
 attempts at most, shared by the three kinds of failure):
 
 * 503 ``overloaded``: sleep for the answer's ``Retry-After`` (capped at
@@ -39,14 +39,24 @@ import os
 import random
 import time
 from types import TracebackType
-from typing import Any, Callable, Dict, Mapping, Optional, Tuple, Type, Union, cast
+from typing import Any, Callable, Dict, List, Mapping, Optional, Tuple, Type, Union, cast
+from urllib.parse import urlencode
 
 import requests
 import urllib3
 
 from ._version import __version__
 from .errors import OverloadedError, ShuttingDownError, UnexpectedResponseError, error_from_response
-from .models import Problem, SolveResult, _non_finite, _parse_server_timing, to_json_value
+from .models import (
+    DEFAULT_MODEL,
+    ModelInfo,
+    Problem,
+    SolveResult,
+    _list,
+    _non_finite,
+    _parse_server_timing,
+    to_json_value,
+)
 
 __all__ = ["Client", "ProblemLike", "TimeoutSpec"]
 
@@ -276,6 +286,9 @@ class Client:
         # _read_environment_once); empty for a session of the caller's.
         self._environment: Dict[str, Any] = {}
         self._netrc_auth: Optional[Tuple[str, str]] = None
+        # Each model's position entries, from the last models() call: given
+        # to the results of this client's solves (SolveResult.positions).
+        self._positions: Dict[str, Tuple[int, int]] = {}
         if self._owns_session:
             self.session.headers["User-Agent"] = (
                 f"ilqr-client-python/{__version__} {requests.utils.default_user_agent()}"
@@ -350,7 +363,7 @@ class Client:
         Args:
             problem: A :class:`Problem`, a JSON-like mapping (lists, tuples and
                 numpy arrays are all fine as values), or ``None`` for ``{}``,
-                the seed scenario. Omitted fields take the service's defaults.
+                the seed scenario. Omitted fields take the model's defaults.
             timeout: Overrides the client's timeout for this call, exactly.
                 Without it the client's timeout is used, its read part raised
                 to the problem's ``solver.time_limit_ms`` plus 5 s when it is
@@ -425,26 +438,68 @@ class Client:
             deadline_at=deadline_at,
         )
         data = self._json(response)
+        model = data.get("model") if isinstance(data, Mapping) else None
         try:
             return SolveResult.from_dict(
                 data,
                 request_id=response.headers.get("x-request-id"),
                 server_timing=_parse_server_timing(response.headers.get("server-timing")),
                 attempts=attempts,
+                model_position=self._positions.get(model if isinstance(model, str) else DEFAULT_MODEL),
             )
         except (ValueError, TypeError) as exc:
             raise self._unexpected(response, f"malformed solve result: {exc}") from exc
 
-    def default_problem(self, *, deadline: Optional[float] = None) -> Problem:
-        """Fetch the seed scenario with every field expanded (``GET /problems/default``).
+    def default_problem(self, model: Optional[str] = None, *, deadline: Optional[float] = None) -> Problem:
+        """Fetch a model's default problem with every field expanded
+        (``GET /problems/default``).
 
         Edit it and pass it to :meth:`solve`; ``problem.to_dict()`` gives the
-        JSON document.
+        JSON document. Its ``solver.time_limit_ms`` is the service's default
+        budget; ``initial_controls`` is left out (the model's rest controls).
 
         Args:
+            model: The model's name (``"unicycle"``; :meth:`models` lists
+                them). ``None``: the default model's, the planar quadrotor's
+                seed scenario (the request then has no query).
             deadline: Seconds this call may take in all (at most 1e9),
                 retries and the waits between them included, as for
                 :meth:`solve`.
+
+        Raises:
+            NotFoundError: the service has no model of that name.
+            ApiError: for another error answer.
+            requests.Timeout: an attempt ran out of time, or ``deadline``
+                left none for one.
+            requests.RequestException: other transport failures.
+            ValueError: ``deadline`` is not a positive number of seconds.
+        """
+        deadline_at = _deadline_at(deadline)
+        path = "/problems/default"
+        if model is not None:
+            if not isinstance(model, str):
+                raise TypeError(f"model must be a model's name (a str), got {type(model).__name__}")
+            path += "?" + urlencode({"model": model})
+        response, _ = self._request("GET", path, deadline_at=deadline_at)
+        data = self._json(response)
+        try:
+            return Problem.from_dict(data)
+        except (ValueError, TypeError) as exc:
+            raise self._unexpected(response, f"malformed problem document: {exc}") from exc
+
+    def models(self, *, deadline: Optional[float] = None) -> List[ModelInfo]:
+        """Every model the service solves for (``GET /models``), the default first.
+
+        Each :class:`~ilqr_client.models.ModelInfo` names the model's state
+        components and controls (their number is the length of the
+        problem's vectors), its parameters with their defaults and ranges,
+        the state entries of its position in the plane, and its default
+        problem. The client keeps the positions: the results of its later
+        solves read their :attr:`~ilqr_client.SolveResult.positions` from
+        them.
+
+        Args:
+            deadline: Seconds this call may take in all, as for :meth:`solve`.
 
         Raises:
             ApiError: for an error answer.
@@ -454,12 +509,17 @@ class Client:
             ValueError: ``deadline`` is not a positive number of seconds.
         """
         deadline_at = _deadline_at(deadline)
-        response, _ = self._request("GET", "/problems/default", deadline_at=deadline_at)
+        response, _ = self._request("GET", "/models", deadline_at=deadline_at)
         data = self._json(response)
         try:
-            return Problem.from_dict(data)
+            if not isinstance(data, Mapping):
+                raise ValueError("expected a JSON object")
+            entries = _list(data.get("models"), "/models")
+            infos = [ModelInfo.from_dict(entry, f"/models/{i}") for i, entry in enumerate(entries)]
         except (ValueError, TypeError) as exc:
-            raise self._unexpected(response, f"malformed problem document: {exc}") from exc
+            raise self._unexpected(response, f"malformed model list: {exc}") from exc
+        self._positions = {info.type: info.position for info in infos}
+        return infos
 
     def health(self, timeout: TimeoutSpec = PROBE_TIMEOUT) -> bool:
         """Liveness (``GET /healthz``): ``True`` iff the service answers 200.
@@ -496,6 +556,11 @@ class Client:
             return problem.to_dict()
         if isinstance(problem, Mapping):
             return cast(Dict[str, Any], to_json_value(problem))
+        if isinstance(problem, SolveResult):
+            raise TypeError(
+                "a SolveResult is not a problem: to start from it, pass it as the "
+                "problem's warm_start, e.g. Problem(model=Model(result.model), warm_start=result)"
+            )
         raise TypeError(f"problem must be a Problem, a mapping or None, not {type(problem).__name__}")
 
     def _probe(self, path: str, timeout: TimeoutSpec) -> bool:

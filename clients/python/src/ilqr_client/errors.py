@@ -143,9 +143,10 @@ class ApiError(Exception):
 
 
 class MalformedRequestError(ApiError):
-    """400 ``malformed-json`` (the body was not valid JSON) or
+    """400 ``malformed-json`` (the body was not valid JSON),
     ``unreadable-body`` (the body could not be read: broken chunked
-    encoding, say)."""
+    encoding, say) or ``bad-query`` (a query parameter the route does not
+    take, or a value it cannot read)."""
 
 
 class ValidationError(ApiError):
@@ -190,7 +191,9 @@ class RequestTimeoutError(ApiError):
 
 
 class NotFoundError(ApiError):
-    """404 ``not-found``: no such route (usually a wrong ``base_url``)."""
+    """404 ``not-found``: no such route (usually a wrong ``base_url``), or
+    no such model (``default_problem(model=...)``: ``detail`` lists the
+    service's models)."""
 
 
 class MethodNotAllowedError(ApiError):
@@ -227,6 +230,7 @@ class UnexpectedResponseError(ApiError):
 _BY_SLUG: Dict[str, Type[ApiError]] = {
     "malformed-json": MalformedRequestError,
     "unreadable-body": MalformedRequestError,
+    "bad-query": MalformedRequestError,
     "validation": ValidationError,
     "unsupported-media-type": UnsupportedMediaTypeError,
     "payload-too-large": PayloadTooLargeError,

@@ -1,18 +1,21 @@
 """Typed request and response models of the ilqr-service API.
 
 Requests
-    :class:`Problem` and its parts (:class:`QuadrotorModel`, :class:`Weights`,
-    :class:`Obstacle`, :class:`SolverOptions`, :class:`OutputOptions`) are
-    mutable dataclasses meant to be built and edited. A field left ``None`` is
-    left out of the request, so the service fills in its default (the seed
-    scenario). ``extra`` keeps members this client version does not know, so a
-    problem fetched from a newer service posts back unchanged.
+    :class:`Problem` and its parts (:class:`Model` or :class:`QuadrotorModel`,
+    :class:`Weights`, :class:`Obstacle`, :class:`SolverOptions`,
+    :class:`OutputOptions`) are mutable dataclasses meant to be built and
+    edited. A field left ``None`` is left out of the request, so the service
+    fills in the model's default. ``extra`` keeps members this client version
+    does not know, so a problem fetched from a newer service posts back
+    unchanged.
 
 Responses
     :class:`SolveResult`, :class:`Gains` and :class:`TraceEntry` are frozen
-    dataclasses parsed from the JSON answer. Arrays are plain nested lists of
-    floats; ``as_numpy()`` converts them when numpy is installed (it is not a
-    dependency).
+    dataclasses parsed from the JSON answer; :class:`ModelInfo` (with
+    :class:`QuantityInfo` and :class:`ParameterInfo`) describes a model of
+    ``GET /models``. Arrays are plain nested lists of floats, as wide as the
+    model's state (NX) and controls (NU); ``as_numpy()`` converts them when
+    numpy is installed (it is not a dependency).
 
 Only the shape of responses is checked here; the service validates problems.
 """
@@ -23,7 +26,7 @@ import difflib
 import math
 import operator
 from dataclasses import MISSING, dataclass, field, fields
-from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union
+from typing import TYPE_CHECKING, Any, Dict, List, Mapping, Optional, Sequence, Tuple, Type, TypeVar, Union, cast
 
 # A vector field accepts a list or tuple of numbers, or a numpy array (sent
 # through its ``tolist``); a matrix field rows of those, or a 2-D array.
@@ -46,6 +49,8 @@ else:
 
 __all__ = [
     "SOLVE_STATUSES",
+    "DEFAULT_MODEL",
+    "Model",
     "QuadrotorModel",
     "Weights",
     "Obstacle",
@@ -55,6 +60,9 @@ __all__ = [
     "TraceEntry",
     "Gains",
     "SolveResult",
+    "QuantityInfo",
+    "ParameterInfo",
+    "ModelInfo",
     "to_json_value",
     "Floats",
     "FloatRows",
@@ -63,10 +71,13 @@ __all__ = [
 #: Every ``status`` a 200 answer may carry. Each one comes with the best trajectory found.
 SOLVE_STATUSES = ("converged", "max_iterations", "time_limit", "cancelled", "no_progress")
 
-#: Number of state components: x, y, θ, ẋ, ẏ, θ̇.
-STATE_DIM = 6
-#: Number of controls: the two rotor thrusts u1, u2.
-CONTROL_DIM = 2
+#: The state entries of the position in the plane, ``(x, y)``, of the
+#: models this client version knows of: those a result's ``positions``
+#: reads when the client has not fetched ``GET /models`` (which says, for
+#: every model the service has), and for a model this table does not name.
+_BUILTIN_POSITIONS: Dict[str, Tuple[int, int]] = {"quadrotor_2d": (0, 1), "unicycle": (0, 1)}
+#: The position entries assumed for a model of neither source.
+_FALLBACK_POSITION = (0, 1)
 
 
 # --------------------------------------------------------------------------- #
@@ -77,7 +88,8 @@ CONTROL_DIM = 2
 def to_json_value(value: Any) -> Any:
     """Convert a problem value to plain JSON types.
 
-    Handles the request dataclasses (via ``to_dict``), mappings, sequences
+    Handles the request dataclasses (via ``to_dict``), a :class:`SolveResult`
+    (as a warm start: its ``controls`` and ``model``), mappings, sequences
     (tuples become lists), numpy arrays and scalars and pandas Series (via
     ``tolist``) and pandas DataFrames (their values, row by row).
 
@@ -98,6 +110,8 @@ def to_json_value(value: Any) -> Any:
     # array. Any other dataclass falls through to the TypeError below.
     if isinstance(value, _REQUEST_TYPES):
         return value.to_dict()
+    if isinstance(value, SolveResult):  # a warm start
+        return value.to_warm_start()
     tolist = getattr(value, "tolist", None)
     if callable(tolist):  # numpy arrays and numpy scalars, pandas Series
         return tolist()
@@ -207,6 +221,13 @@ def _bool(value: Any, where: str) -> bool:
     return value
 
 
+def _string(value: Any, where: str) -> str:
+    """A JSON string."""
+    if not isinstance(value, str):
+        raise ValueError(f"{where}: expected a string, got {value!r}")
+    return value
+
+
 def _list(value: Any, where: str) -> List[Any]:
     if not isinstance(value, list):
         raise ValueError(f"{where}: expected an array, got {type(value).__name__}")
@@ -247,7 +268,11 @@ def _vector(value: Any, where: str, length: Optional[int] = None) -> List[float]
 
 
 def _matrix(value: Any, where: str, columns: Optional[int] = None) -> List[List[float]]:
+    """Rows of numbers, every one ``columns`` wide: as wide as the first
+    when ``columns`` is ``None`` (the width is the model's)."""
     rows = _list(value, where)
+    if columns is None and rows and isinstance(rows[0], list):
+        columns = len(rows[0])
     return [
         list(row) if _floats(row, columns) else _vector(row, f"{where}/{i}", columns)
         for i, row in enumerate(rows)
@@ -258,6 +283,13 @@ def _require(data: Mapping[str, Any], key: str, where: str) -> Any:
     if key not in data:
         raise ValueError(f"{where}: missing member {key!r}")
     return data[key]
+
+
+def _array(rows: List[List[float]]) -> Array:
+    """Rows of equal width as a 2-D numpy array ((0, 0) for no rows)."""
+    np = _numpy()
+    array: Array = np.asarray(rows, dtype=float).reshape(len(rows), len(rows[0]) if rows else 0)
+    return array
 
 
 def _numpy() -> Any:
@@ -293,42 +325,173 @@ class _FieldsOnly:
 
         def __setattr__(self, name, value):
             known = getattr(type(self), "__dataclass_fields__", {})
-            if name not in known:
-                close = difflib.get_close_matches(name, list(known), n=1)
+            # A data descriptor of the class (QuadrotorModel.mass) sets itself.
+            if name not in known and not hasattr(getattr(type(self), name, None), "__set__"):
+                names = list(known) + [
+                    n for n in dir(type(self))
+                    if not n.startswith("_") and hasattr(getattr(type(self), n, None), "__set__")
+                ]
+                close = difflib.get_close_matches(name, names, n=1)
                 hint = f"; did you mean {close[0]!r}?" if close else f"; its fields: {', '.join(known)}"
                 raise AttributeError(f"{type(self).__name__} has no field {name!r}{hint}")
             object.__setattr__(self, name, value)
 
 
-@dataclass
-class QuadrotorModel(_FieldsOnly):
-    """Physical parameters of the planar quadrotor (``model`` in a problem).
+#: The model a problem that names none is solved for.
+DEFAULT_MODEL = "quadrotor_2d"
+
+
+@dataclass(eq=False)
+class Model(_FieldsOnly):
+    """A dynamics model and its parameter values (``model`` in a problem).
+
+    Sent flat, as the service wants it: ``Model("quadrotor_2d", {"mass":
+    2.0})`` is ``{"type": "quadrotor_2d", "mass": 2.0}``. Which models exist
+    and which parameters each takes is the service's to say
+    (:meth:`~ilqr_client.Client.models`); the service has
+    ``"quadrotor_2d"`` (parameters ``mass``, ``inertia``, ``arm_length``,
+    ``gravity``; :class:`QuadrotorModel` names them) and ``"unicycle"``
+    (no parameters). A parameter left out takes the model's default; one
+    the model does not have is a 422 at ``/model/<name>``.
+
+    Two models are equal when their ``type`` and ``parameters`` are,
+    whichever of the two classes they are.
 
     Attributes:
-        type: Model kind; only ``"quadrotor_2d"`` exists.
+        type: The model's name; ``None`` leaves it out, and the service
+            then uses its default model, ``"quadrotor_2d"``.
+        parameters: Parameter values by name (numbers; a ``None`` value is
+            left out of the request).
+    """
+
+    type: Optional[str] = None
+    parameters: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for this model: ``type`` and every parameter, flat.
+
+        Raises:
+            ValueError: if ``parameters`` has a member ``"type"``, which
+                would collide with the model's name.
+        """
+        if "type" in self.parameters:
+            raise ValueError("/model: 'type' is the model's name, not a parameter: set Model.type")
+        out: Dict[str, Any] = {} if self.type is None else {"type": self.type}
+        for name, value in self.parameters.items():
+            if value is not None:
+                out[name] = to_json_value(value)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/model") -> "Model":
+        """Build from the JSON object (as in ``GET /problems/default``).
+
+        Every member but ``type`` is a parameter. Called on :class:`Model`,
+        a planar quadrotor (``type`` ``"quadrotor_2d"``, or none) comes back
+        as a :class:`QuadrotorModel`, so that ``problem.model.mass`` reads
+        as it did before models were generic.
+
+        Raises:
+            TypeError: if ``data`` is not an object.
+        """
+        if not isinstance(data, Mapping):
+            raise TypeError(f"{where}: expected an object, got {type(data).__name__}")
+        kind = data.get("type")
+        parameters = {str(key): value for key, value in data.items() if key != "type"}
+        if cls is Model and kind in (None, DEFAULT_MODEL):
+            return QuadrotorModel(type=kind, parameters=parameters)
+        return cls(type=kind, parameters=parameters)
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Model):
+            return NotImplemented
+        return (self.type, self.parameters) == (other.type, other.parameters)
+
+    __hash__ = None  # type: ignore[assignment]  # mutable, as the other request dataclasses
+
+
+class _Parameter:
+    """A named parameter of :class:`QuadrotorModel`: reads and writes
+    ``parameters[name]``, where ``None`` means left out."""
+
+    def __init__(self, doc: str) -> None:
+        self.__doc__ = doc
+        self.name = ""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+
+    def __get__(self, obj: Optional[Model], owner: Optional[type] = None) -> Optional[float]:
+        if obj is None:  # on the class: the descriptor itself, for help() and docs
+            return self  # type: ignore[return-value]
+        value = obj.parameters.get(self.name)
+        return None if value is None else cast(float, value)
+
+    def __set__(self, obj: Model, value: Optional[float]) -> None:
+        if value is None:
+            obj.parameters.pop(self.name, None)
+        else:
+            obj.parameters[self.name] = value
+
+
+class QuadrotorModel(Model):
+    """The planar quadrotor, ``quadrotor_2d``, with its parameters by name.
+
+    A :class:`Model` whose ``type`` is ``"quadrotor_2d"``; ``mass``,
+    ``inertia``, ``arm_length`` and ``gravity`` read and write
+    ``parameters`` (``None``: left out, the service's default).
+    ``QuadrotorModel(mass=2.0).to_dict()`` is ``{"type": "quadrotor_2d",
+    "mass": 2.0}``.
+
+    Args:
+        type: ``"quadrotor_2d"``, or ``None`` to leave ``type`` out of the
+            request (the service's default model, which is this one).
         mass: Mass m in kg (1e-6..1e6). Service default 1.
         inertia: Moment of inertia I in kg·m² (1e-6..1e6). Service default 1.
         arm_length: Distance r from the centre to each rotor in m (1e-6..1e6). Service default 1.
         gravity: Gravitational acceleration g in m/s² (0..1e4). Service default 9.81.
-        extra: Members this client does not know; sent as they are.
+        extra: Other members, sent as they are (the service refuses a
+            parameter the model does not have); merged into ``parameters``.
+        parameters: Parameter values by name, as for :class:`Model`; the
+            named arguments above override them.
+
+    Raises:
+        ValueError: for a ``type`` other than ``"quadrotor_2d"``.
     """
 
-    type: Optional[str] = None
-    mass: Optional[float] = None
-    inertia: Optional[float] = None
-    arm_length: Optional[float] = None
-    gravity: Optional[float] = None
-    extra: Dict[str, Any] = field(default_factory=dict)
+    mass = _Parameter("Mass m in kg; ``None``: the service's default, 1.")
+    inertia = _Parameter("Moment of inertia I in kg·m²; ``None``: the service's default, 1.")
+    arm_length = _Parameter("Distance r from the centre to each rotor in m; ``None``: the service's default, 1.")
+    gravity = _Parameter("Gravitational acceleration g in m/s²; ``None``: the service's default, 9.81.")
 
-    def to_dict(self) -> Dict[str, Any]:
-        """The JSON object for this model, without ``None`` fields."""
-        return _spec_to_dict(self)
+    def __init__(
+        self,
+        type: Optional[str] = DEFAULT_MODEL,
+        mass: Optional[float] = None,
+        inertia: Optional[float] = None,
+        arm_length: Optional[float] = None,
+        gravity: Optional[float] = None,
+        extra: Optional[Mapping[str, Any]] = None,
+        *,
+        parameters: Optional[Mapping[str, Any]] = None,
+    ) -> None:
+        if type not in (None, DEFAULT_MODEL):
+            raise ValueError(f"a QuadrotorModel is of type {DEFAULT_MODEL!r}, got {type!r}: use Model for others")
+        merged: Dict[str, Any] = {**(parameters or {}), **(extra or {})}
+        for name, value in (("mass", mass), ("inertia", inertia), ("arm_length", arm_length), ("gravity", gravity)):
+            if value is not None:
+                merged[name] = value
+        super().__init__(type=type, parameters=merged)
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any]) -> "QuadrotorModel":
-        """Build from the JSON object (as in ``GET /problems/default``)."""
-        known, extra = _split_known(cls, data, "/model")
-        return _build(cls, known, extra, "/model")
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/model") -> "QuadrotorModel":
+        """Build from the JSON object; every member but ``type`` is a parameter.
+
+        Raises:
+            TypeError: if ``data`` is not an object.
+            ValueError: if its ``type`` is another model's.
+        """
+        return cast(QuadrotorModel, super().from_dict(data, where))
 
 
 @dataclass
@@ -336,9 +499,12 @@ class Weights(_FieldsOnly):
     """Diagonal cost weights (no ½ factors).
 
     Attributes:
-        state: Diagonal of Q, 6 numbers in [0, 1e12]. Service default all 1.
-        control: Diagonal of R, 2 numbers in [0, 1e12]. Service default ``[0.1, 0.1]``.
-        terminal: Diagonal of Q_f, 6 numbers in [0, 1e12]. Service default all 50000.
+        state: Diagonal of Q, NX numbers (one per state component of the
+            model) in [0, 1e12]. Model default (the quadrotor's: all 1).
+        control: Diagonal of R, NU numbers in [0, 1e12]. Model default (the
+            quadrotor's: ``[0.1, 0.1]``).
+        terminal: Diagonal of Q_f, NX numbers in [0, 1e12]. Model default
+            (the quadrotor's: all 50000).
         extra: Members this client does not know; sent as they are.
     """
 
@@ -452,31 +618,48 @@ class OutputOptions(_FieldsOnly):
 
 @dataclass
 class Problem(_FieldsOnly):
-    """A trajectory-optimisation problem for the planar quadrotor.
+    """A trajectory-optimisation problem for one of the service's models.
 
     Every field is optional: ``None`` leaves it out of the request and the
-    service uses the seed scenario's value, so ``Problem()`` posts ``{}``.
-    States are ``[x, y, θ, ẋ, ẏ, θ̇]`` in m, m, rad, m/s, m/s, rad/s; controls
-    are the rotor thrusts ``[u1, u2]`` in N. Sequences may be lists, tuples or
-    numpy arrays.
+    service uses the model's default (``GET /models`` lists them), so
+    ``Problem()`` posts ``{}``, the planar quadrotor's seed scenario, and
+    ``Problem(model=Model("unicycle"))`` the unicycle's default problem.
+
+    Vector lengths follow the model: NX numbers for a state (6 for
+    ``quadrotor_2d``: ``[x, y, θ, ẋ, ẏ, θ̇]`` in m, m, rad, m/s, m/s, rad/s;
+    3 for ``unicycle``: ``[x, y, θ]`` in m, m, rad) and NU for a control (2
+    for both: rotor thrusts ``[u1, u2]`` in N; ``[v, ω]`` in m/s, rad/s). A
+    wrong length is a 422 naming the pointer, the model and the length.
+    Sequences may be lists, tuples or numpy arrays.
 
     Attributes:
-        model: Dynamics model and its parameters.
-        integrator: Discretisation; only ``"euler"`` exists.
-        dt: Time step in s, in (0, 10]. Service default 0.05.
-        horizon: Number of control steps N (1..10000). Service default 100.
-        initial_state: 6 numbers of magnitude ≤ 1e6. Service default ``[5, 0, 0, 0, 0, 0]``.
-        goal_state: 6 numbers of magnitude ≤ 1e6. Service default ``[4, 9, 0, 0, 0, 0]``.
+        model: Dynamics model and its parameters (a :class:`Model`, or a
+            :class:`QuadrotorModel`). Service default: ``quadrotor_2d`` with
+            its default parameters.
+        integrator: Discretisation: ``"euler"`` (service default) or ``"rk4"``.
+        dt: Time step in s, in (0, 10]. Model default (0.05 for the quadrotor).
+        horizon: Number of control steps N (1..10000). Model default (100
+            for the quadrotor), or the warm start's number of controls.
+        initial_state: NX numbers of magnitude ≤ 1e6.
+        goal_state: NX numbers of magnitude ≤ 1e6.
         weights: Diagonal cost weights.
-        obstacles: Soft obstacles (at most 100); ``[]`` means none, ``None``
-            the service default (one at (4.5, 4.5) with weight 1000).
-        initial_controls: Initial guess, N rows of ``[u1, u2]`` in N (magnitude ≤ 1e12).
+        obstacles: Soft obstacles (at most 100), around the model's position
+            in the plane; ``[]`` means none, ``None`` the model's default
+            (for the quadrotor, one at (4.5, 4.5) with weight 1000).
+        initial_controls: Initial guess, N rows of NU numbers (magnitude ≤
+            1e12). Not together with ``warm_start``.
         solver: Termination settings.
         output: Which optional parts of the result to return.
+        warm_start: A previous result to start from: a :class:`SolveResult`
+            (sent as its ``controls`` and ``model``) or a mapping such as an
+            answer's JSON (sent as it is). Its controls become the initial
+            guess and set the horizon when ``horizon`` is ``None``; its
+            model, if it names one, must be this problem's. Not together
+            with ``initial_controls``.
         extra: Members this client does not know; sent as they are.
     """
 
-    model: Optional[QuadrotorModel] = None
+    model: Optional[Model] = None
     integrator: Optional[str] = None
     dt: Optional[float] = None
     horizon: Optional[int] = None
@@ -487,6 +670,8 @@ class Problem(_FieldsOnly):
     initial_controls: Optional[FloatRows] = None
     solver: Optional[SolverOptions] = None
     output: Optional[OutputOptions] = None
+    # Last, so that the fields before keep their positions.
+    warm_start: Optional[Union["SolveResult", Mapping[str, Any]]] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
@@ -499,14 +684,14 @@ class Problem(_FieldsOnly):
 
         Explicit JSON ``null`` members become ``None``, which :meth:`to_dict`
         leaves out, so the service applies its default. (Posted as is, the
-        service takes ``null`` only for ``initial_controls`` and
-        ``solver.time_limit_ms``, whose defaults are "none given"; send
+        service takes ``null`` only for ``initial_controls``, ``warm_start``
+        and ``solver.time_limit_ms``, whose defaults are "none given"; send
         :meth:`to_dict`, not ``dataclasses.asdict``.) Unknown members are
         kept in ``extra``.
         """
         known, extra = _split_known(cls, data, "(problem)")
         parsers: Dict[str, Any] = {
-            "model": QuadrotorModel.from_dict,
+            "model": Model.from_dict,
             "weights": Weights.from_dict,
             "solver": SolverOptions.from_dict,
             "output": OutputOptions.from_dict,
@@ -521,7 +706,7 @@ class Problem(_FieldsOnly):
 
 
 #: The dataclasses :func:`to_json_value` serialises with their ``to_dict``.
-_REQUEST_TYPES = (QuadrotorModel, Weights, Obstacle, SolverOptions, OutputOptions, Problem)
+_REQUEST_TYPES = (Model, Weights, Obstacle, SolverOptions, OutputOptions, Problem)
 
 
 # --------------------------------------------------------------------------- #
@@ -581,9 +766,10 @@ class Gains:
     """The time-varying feedback policy ``u_k = ū_k + K_k (x_k − x̄_k)``.
 
     Attributes:
-        feedback: K_0..K_{N−1}: N matrices of 2 rows (controls) × 6 columns
-            (states), row-major.
-        feedforward: d_0..d_{N−1}: N rows of 2, the control change the solver
+        feedback: K_0..K_{N−1}: N matrices of NU rows (controls) × NX
+            columns (states), row-major (2 × 6 for the quadrotor, 2 × 3 for
+            the unicycle).
+        feedforward: d_0..d_{N−1}: N rows of NU, the control change the solver
             would take next (near zero at convergence).
         regularization: The μ of the backward pass that produced the gains
             (``Q_uu + μI``): 0 for the undamped Riccati gains, larger for
@@ -607,15 +793,34 @@ class Gains:
     about_previous_iterate: Optional[bool] = None
 
     @classmethod
-    def from_dict(cls, data: Mapping[str, Any], where: str = "/gains") -> "Gains":
-        """Parse the ``gains`` member of a solve answer."""
+    def from_dict(
+        cls,
+        data: Mapping[str, Any],
+        where: str = "/gains",
+        *,
+        state_dim: Optional[int] = None,
+        control_dim: Optional[int] = None,
+    ) -> "Gains":
+        """Parse the ``gains`` member of a solve answer.
+
+        ``state_dim`` and ``control_dim`` (NX, NU: the widths of the
+        result's states and controls) are checked where given; otherwise
+        every matrix must be as wide as the first, and ``feedforward`` as
+        wide as the matrices are tall.
+        """
         if not isinstance(data, Mapping):
             raise ValueError(f"{where}: expected an object")
-        feedback = [
-            _matrix(k, f"{where}/feedback/{i}", STATE_DIM)
-            for i, k in enumerate(_list(_require(data, "feedback", where), f"{where}/feedback"))
-        ]
-        feedforward = _matrix(_require(data, "feedforward", where), f"{where}/feedforward", CONTROL_DIM)
+        rows = _list(_require(data, "feedback", where), f"{where}/feedback")
+        feedback: List[List[List[float]]] = []
+        for i, k in enumerate(rows):
+            matrix = _matrix(k, f"{where}/feedback/{i}", state_dim)
+            if control_dim is not None and len(matrix) != control_dim:
+                raise ValueError(f"{where}/feedback/{i}: expected {control_dim} rows, got {len(matrix)}")
+            if state_dim is None and matrix:
+                state_dim = len(matrix[0])
+            control_dim = len(matrix)
+            feedback.append(matrix)
+        feedforward = _matrix(_require(data, "feedforward", where), f"{where}/feedforward", control_dim)
         raw_mu = data.get("regularization")
         regularization = None if raw_mu is None else _float(raw_mu, f"{where}/regularization")
         raw_prev = data.get("about_previous_iterate")
@@ -638,40 +843,48 @@ class Gains:
             nominal_control: The optimised control ū_k (``result.controls[k]``).
 
         Returns:
-            ``ū_k + K_k (x_k − x̄_k)`` as ``[u1, u2]``.
+            ``ū_k + K_k (x_k − x̄_k)``, NU numbers.
 
         Raises:
             IndexError: if ``k`` is not in 0..N−1 (a negative ``k`` does not
                 count from the end).
             TypeError: if ``k`` is not an integer (``True`` and ``1.0`` are
                 not steps; numpy integers are).
-            ValueError: if a state does not have 6 components or the control 2.
+            ValueError: if a state does not have NX components or the
+                control NU (the gain matrix's columns and rows).
         """
         if isinstance(k, bool) or not hasattr(type(k), "__index__"):
             raise TypeError(f"step k must be an integer, got {k!r}")
         k = operator.index(k)
         if not 0 <= k < len(self.feedback):
             raise IndexError(f"step k must be in 0..{len(self.feedback) - 1}, got {k}")
-        if len(state) != STATE_DIM or len(nominal_state) != STATE_DIM:
-            raise ValueError(f"states must have {STATE_DIM} components")
-        if len(nominal_control) != CONTROL_DIM:
-            raise ValueError(f"the control must have {CONTROL_DIM} components")
+        gain = self.feedback[k]
+        nx = len(gain[0]) if gain else 0
+        if len(state) != nx or len(nominal_state) != nx:
+            raise ValueError(
+                f"states must have {nx} components, got {len(state)} and {len(nominal_state)}"
+            )
+        if len(nominal_control) != len(gain):
+            raise ValueError(f"the control must have {len(gain)} components, got {len(nominal_control)}")
         deviation = [a - b for a, b in zip(state, nominal_state)]
         return [
             u + sum(gain * dx for gain, dx in zip(row, deviation))
-            for u, row in zip(nominal_control, self.feedback[k])
+            for u, row in zip(nominal_control, gain)
         ]
 
     def as_numpy(self) -> Tuple[Array, Array]:
-        """``(feedback, feedforward)`` as numpy arrays of shape (N, 2, 6) and (N, 2).
+        """``(feedback, feedforward)`` as numpy arrays of shape (N, NU, NX) and (N, NU).
 
         Raises:
             ImportError: if numpy is not installed.
         """
         np = _numpy()
+        feedback = self.feedback
+        nu = len(feedback[0]) if feedback else 0
+        nx = len(feedback[0][0]) if feedback and feedback[0] else 0
         return (
-            np.asarray(self.feedback, dtype=float).reshape(-1, CONTROL_DIM, STATE_DIM),
-            np.asarray(self.feedforward, dtype=float).reshape(-1, CONTROL_DIM),
+            np.asarray(feedback, dtype=float).reshape(len(feedback), nu, nx),
+            _array(self.feedforward),
         )
 
 
@@ -692,8 +905,11 @@ class SolveResult:
             centre to the path: the straight segments between consecutive
             states (the path flown under explicit Euler), so a close pass
             between two knots counts.
-        states: x_0..x_N, N + 1 rows of ``[x, y, θ, ẋ, ẏ, θ̇]``.
-        controls: u_0..u_{N−1}, N rows of ``[u1, u2]``.
+        states: x_0..x_N, N + 1 rows of the model's NX state components
+            (``[x, y, θ, ẋ, ẏ, θ̇]`` for the quadrotor, ``[x, y, θ]`` for
+            the unicycle).
+        controls: u_0..u_{N−1}, N rows of its NU controls (``[u1, u2]``,
+            ``[v, ω]``).
         solve_time_ms: Time spent solving, in ms.
         queue_time_ms: Time spent waiting for a worker, in ms.
         gains: The feedback policy, or ``None`` when ``output.gains`` was false
@@ -724,6 +940,15 @@ class SolveResult:
             was sent). A control loop that must not act on an answer for an
             old state checks it, or makes the client with ``retries=0``
             (not part of equality).
+        model: The model solved for (``model.type``: ``"quadrotor_2d"``,
+            ``"unicycle"``); ``None`` from a service too old to say.
+        integrator: The integrator used (``"euler"``, ``"rk4"``); ``None``
+            from a service too old to say.
+        model_position: The state entries of the position in the plane,
+            as ``GET /models`` gives them for ``model``, when the client
+            that made this result had fetched them (:meth:`Client.models`);
+            else ``None``, and :attr:`positions` uses what this client
+            version knows (not part of equality).
     """
 
     status: str
@@ -743,6 +968,10 @@ class SolveResult:
     request_id: Optional[str] = field(default=None, compare=False)
     server_timing: Optional[Dict[str, float]] = field(default=None, compare=False)
     attempts: int = field(default=1, compare=False)
+    # Last, so that the fields before keep their positions.
+    model: Optional[str] = None
+    integrator: Optional[str] = None
+    model_position: Optional[Tuple[int, int]] = field(default=None, compare=False)
 
     @classmethod
     def from_dict(
@@ -751,11 +980,16 @@ class SolveResult:
         request_id: Optional[str] = None,
         server_timing: Optional[Dict[str, float]] = None,
         attempts: int = 1,
+        model_position: Optional[Tuple[int, int]] = None,
     ) -> "SolveResult":
         """Parse a solve answer (its body; the two headers are passed apart).
 
+        The widths of ``states`` and ``controls`` are the model's: every
+        row must be as wide as the first, and the gains must match them.
+
         Raises:
-            ValueError: if a required member is missing or has the wrong type.
+            ValueError: if a required member is missing or has the wrong
+                type or shape.
         """
         if not isinstance(data, Mapping):
             raise ValueError("expected a JSON object")
@@ -766,18 +1000,30 @@ class SolveResult:
         trace = data.get("trace")
         convexified = data.get("convexified_after_iteration")
         convex_at_end = data.get("convex_model_at_end")
+        model = data.get("model")
+        integrator = data.get("integrator")
+        # In the order of the answer's members, so that the first one wrong is named.
+        cost = _float(_require(data, "cost", "(result)"), "/cost")
+        initial_cost = _float(_require(data, "initial_cost", "(result)"), "/initial_cost")
+        iterations = _int(_require(data, "iterations", "(result)"), "/iterations")
+        goal_distance = _float(_require(data, "goal_distance", "(result)"), "/goal_distance")
+        closest_approach = _vector(_require(data, "closest_approach", "(result)"), "/closest_approach")
+        states = _matrix(_require(data, "states", "(result)"), "/states")
+        controls = _matrix(_require(data, "controls", "(result)"), "/controls")
+        nx = len(states[0]) if states else None
+        nu = len(controls[0]) if controls else None
         return cls(
             status=status,
-            cost=_float(_require(data, "cost", "(result)"), "/cost"),
-            initial_cost=_float(_require(data, "initial_cost", "(result)"), "/initial_cost"),
-            iterations=_int(_require(data, "iterations", "(result)"), "/iterations"),
-            goal_distance=_float(_require(data, "goal_distance", "(result)"), "/goal_distance"),
-            closest_approach=_vector(_require(data, "closest_approach", "(result)"), "/closest_approach"),
-            states=_matrix(_require(data, "states", "(result)"), "/states", STATE_DIM),
-            controls=_matrix(_require(data, "controls", "(result)"), "/controls", CONTROL_DIM),
+            cost=cost,
+            initial_cost=initial_cost,
+            iterations=iterations,
+            goal_distance=goal_distance,
+            closest_approach=closest_approach,
+            states=states,
+            controls=controls,
             solve_time_ms=_float(_require(data, "solve_time_ms", "(result)"), "/solve_time_ms"),
             queue_time_ms=_float(_require(data, "queue_time_ms", "(result)"), "/queue_time_ms"),
-            gains=None if gains is None else Gains.from_dict(gains),
+            gains=None if gains is None else Gains.from_dict(gains, state_dim=nx, control_dim=nu),
             trace=None if trace is None else [
                 TraceEntry.from_dict(entry, f"/trace/{i}") for i, entry in enumerate(_list(trace, "/trace"))
             ],
@@ -787,9 +1033,12 @@ class SolveResult:
             convex_model_at_end=(
                 None if convex_at_end is None else _bool(convex_at_end, "/convex_model_at_end")
             ),
+            model=None if model is None else _string(model, "/model"),
+            integrator=None if integrator is None else _string(integrator, "/integrator"),
             request_id=request_id,
             server_timing=server_timing,
             attempts=attempts,
+            model_position=model_position,
         )
 
     def __repr__(self) -> str:
@@ -804,7 +1053,8 @@ class SolveResult:
         approach = self.closest_approach
         nearest = repr(approach) if len(approach) <= 10 else f"<{len(approach)} obstacles, nearest {min(approach)!r}>"
         return (
-            f"SolveResult(status={self.status!r}, cost={self.cost!r}, "
+            f"SolveResult(model={self.model!r}, integrator={self.integrator!r}, "
+            f"status={self.status!r}, cost={self.cost!r}, "
             f"iterations={self.iterations}, horizon={self.horizon}, "
             f"goal_distance={self.goal_distance!r}, closest_approach={nearest}, "
             f"solve_time_ms={self.solve_time_ms!r}, queue_time_ms={self.queue_time_ms!r}, "
@@ -824,7 +1074,8 @@ class SolveResult:
     def shifted_controls(self, steps: int = 1) -> List[List[float]]:
         """The controls moved ``steps`` knots earlier, the last one repeated
         to keep N rows: the warm start for re-solving ``steps`` knots later
-        (receding-horizon MPC), as ``initial_controls``.
+        (receding-horizon MPC), as ``initial_controls`` (``warm_start``
+        takes the controls as they are).
 
         ``result.shifted_controls()`` is ``result.controls[1:] +
         result.controls[-1:]``, as new lists.
@@ -841,9 +1092,32 @@ class SolveResult:
         return [list(u) for u in kept] + [list(self.controls[-1]) for _ in range(steps)]
 
     @property
+    def position_entries(self) -> Tuple[int, int]:
+        """The state entries ``(ix, iy)`` of the position in the plane.
+
+        From ``GET /models`` when the client had fetched it
+        (:attr:`model_position`); else this client version's knowledge of
+        the service's models (``(0, 1)`` for both ``quadrotor_2d`` and
+        ``unicycle``); else, for a model it does not know, ``(0, 1)``.
+        """
+        if self.model_position is not None:
+            return self.model_position
+        return _BUILTIN_POSITIONS.get(self.model or DEFAULT_MODEL, _FALLBACK_POSITION)
+
+    @property
     def positions(self) -> List[Tuple[float, float]]:
-        """The trajectory's ``(x, y)`` positions, N + 1 of them."""
-        return [(state[0], state[1]) for state in self.states]
+        """The trajectory's ``(x, y)`` positions in the plane, N + 1 of them
+        (the state entries :attr:`position_entries` names)."""
+        ix, iy = self.position_entries
+        return [(state[ix], state[iy]) for state in self.states]
+
+    def to_warm_start(self) -> Dict[str, Any]:
+        """What a problem's ``warm_start`` needs of this result: its
+        ``controls`` (as new lists) and its ``model`` (when known)."""
+        out: Dict[str, Any] = {"controls": [list(u) for u in self.controls]}
+        if self.model is not None:
+            out["model"] = self.model
+        return out
 
     @property
     def cost_history(self) -> List[float]:
@@ -856,18 +1130,19 @@ class SolveResult:
         """The arrays of the result as numpy arrays.
 
         Returns:
-            ``states`` (N+1, 6), ``controls`` (N, 2) and ``closest_approach``
-            (M,); plus ``feedback`` (N, 2, 6) and ``feedforward`` (N, 2) when
-            the result has gains, and ``cost`` (iterations + 1,) when it has a
-            trace.
+            ``states`` (N+1, NX), ``controls`` (N, NU) and ``closest_approach``
+            (M,); plus ``feedback`` (N, NU, NX) and ``feedforward`` (N, NU)
+            when the result has gains, and ``cost`` (iterations + 1,) when it
+            has a trace. NX and NU are the model's (6 and 2 for the
+            quadrotor, 3 and 2 for the unicycle).
 
         Raises:
             ImportError: if numpy is not installed.
         """
         np = _numpy()
         arrays = {
-            "states": np.asarray(self.states, dtype=float).reshape(-1, STATE_DIM),
-            "controls": np.asarray(self.controls, dtype=float).reshape(-1, CONTROL_DIM),
+            "states": _array(self.states),
+            "controls": _array(self.controls),
             "closest_approach": np.asarray(self.closest_approach, dtype=float),
         }
         if self.gains is not None:
@@ -875,6 +1150,160 @@ class SolveResult:
         if self.trace is not None:
             arrays["cost"] = np.asarray(self.cost_history, dtype=float)
         return arrays
+
+
+@dataclass(frozen=True)
+class QuantityInfo:
+    """A state component or a control of a model (``GET /models``).
+
+    Attributes:
+        name: Its name in the equations (``"θ"``, ``"u1"``).
+        unit: Its SI unit (``"rad"``, ``"N"``).
+        description: What it is.
+    """
+
+    name: str
+    unit: str
+    description: str
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str) -> "QuantityInfo":
+        """Parse one entry of a model's ``state`` or ``control``."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected an object")
+        return cls(**{f.name: _string(_require(data, f.name, where), f"{where}/{f.name}") for f in fields(cls)})
+
+
+@dataclass(frozen=True)
+class ParameterInfo:
+    """A parameter of a model (``GET /models``): a member of ``model``
+    beside ``type``.
+
+    Attributes:
+        name: The member's name (``"mass"``).
+        unit: Its SI unit.
+        description: What it is.
+        default: Its value when left out.
+        minimum: The smallest value accepted.
+        maximum: The largest value accepted.
+    """
+
+    name: str
+    unit: str
+    description: str
+    default: float
+    minimum: float
+    maximum: float
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str) -> "ParameterInfo":
+        """Parse one entry of a model's ``parameters``."""
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected an object")
+        values: Dict[str, Any] = {}
+        for f in fields(cls):
+            raw = _require(data, f.name, where)
+            path = f"{where}/{f.name}"
+            values[f.name] = _string(raw, path) if f.type in ("str", str) else _float(raw, path)
+        return cls(**values)
+
+
+@dataclass(frozen=True)
+class ModelInfo:
+    """One model the service solves for (an entry of ``GET /models``).
+
+    Attributes:
+        type: The name ``model.type`` takes (``"quadrotor_2d"``, ``"unicycle"``).
+        description: What the model is, its frame and its equations.
+        state: The state's components in order (NX of them): the entries of
+            ``initial_state``, ``goal_state``, ``weights.state``,
+            ``weights.terminal`` and each row of a result's ``states``.
+        control: The controls in order (NU): the entries of
+            ``weights.control`` and of each row of ``initial_controls`` and
+            of a result's ``controls``.
+        parameters: The parameters ``model`` takes beside ``type`` (none for
+            the unicycle).
+        position: The state entries ``(ix, iy)`` of the position in the
+            plane, where obstacles are measured from.
+        default_problem: The problem ``{"model": {"type": <type>}}`` stands
+            for, every member filled in (a new :class:`Problem`, to edit).
+    """
+
+    type: str
+    description: str
+    state: List[QuantityInfo]
+    control: List[QuantityInfo]
+    parameters: List[ParameterInfo]
+    position: Tuple[int, int]
+    default_problem: Problem
+
+    @property
+    def state_dim(self) -> int:
+        """NX, the number of state components."""
+        return len(self.state)
+
+    @property
+    def control_dim(self) -> int:
+        """NU, the number of controls."""
+        return len(self.control)
+
+    def model(self, **parameters: float) -> Model:
+        """A :class:`Model` of this type with the given parameter values
+        (the others left to their defaults); a :class:`QuadrotorModel` for
+        ``quadrotor_2d``.
+
+        Raises:
+            ValueError: for a parameter this model does not have.
+        """
+        known = [p.name for p in self.parameters]
+        for name in parameters:
+            if name not in known:
+                close = difflib.get_close_matches(name, known, n=1)
+                hint = f"; did you mean {close[0]!r}?" if close else f"; it has: {', '.join(known) or 'none'}"
+                raise ValueError(f"model {self.type!r} has no parameter {name!r}{hint}")
+        return Model.from_dict({"type": self.type, **parameters})
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/models/-") -> "ModelInfo":
+        """Parse one entry of ``GET /models``.
+
+        Raises:
+            ValueError: if a member is missing or has the wrong type.
+            TypeError: if the default problem's parts are not objects.
+        """
+        if not isinstance(data, Mapping):
+            raise ValueError(f"{where}: expected an object")
+
+        def entries(key: str) -> List[Any]:
+            return _list(_require(data, key, where), f"{where}/{key}")
+
+        position = entries("position")
+        if len(position) != 2:
+            raise ValueError(f"{where}/position: expected 2 indices, got {len(position)}")
+        default_problem = _require(data, "default_problem", where)
+        if not isinstance(default_problem, Mapping):
+            raise ValueError(f"{where}/default_problem: expected an object")
+        return cls(
+            type=_string(_require(data, "type", where), f"{where}/type"),
+            description=_string(_require(data, "description", where), f"{where}/description"),
+            state=[QuantityInfo.from_dict(q, f"{where}/state/{i}") for i, q in enumerate(entries("state"))],
+            control=[QuantityInfo.from_dict(q, f"{where}/control/{i}") for i, q in enumerate(entries("control"))],
+            parameters=[
+                ParameterInfo.from_dict(p, f"{where}/parameters/{i}") for i, p in enumerate(entries("parameters"))
+            ],
+            position=(_int(position[0], f"{where}/position/0"), _int(position[1], f"{where}/position/1")),
+            default_problem=Problem.from_dict(default_problem),
+        )
+
+    def __repr__(self) -> str:
+        """One line: the name, the state's and controls' names and the parameters."""
+        state = ", ".join(q.name for q in self.state)
+        control = ", ".join(q.name for q in self.control)
+        parameters = ", ".join(p.name for p in self.parameters)
+        return (
+            f"ModelInfo(type={self.type!r}, state=[{state}], control=[{control}], "
+            f"parameters=[{parameters}], position={self.position})"
+        )
 
 
 def _parse_server_timing(header: Optional[str]) -> Optional[Dict[str, float]]:

@@ -5,8 +5,9 @@ only when a function here is called, so ``import ilqr_client.plot`` works
 without it; the call then raises an :class:`ImportError` that says what to
 install.
 
-* :func:`plot_solution`: the (x, y) trajectory, start, end and goal markers,
-  obstacle centres and circles at the closest approach.
+* :func:`plot_solution`: the (x, y) path of any model (the state entries
+  of its position), start, end and goal markers, obstacle centres and
+  circles at the closest approach; for the unicycle, heading arrows.
 * :func:`plot_cost`: cost per iteration from the trace, on a log scale.
 * :func:`save_figure`: both panels side by side, written as a PNG (uses no
   pyplot state, so it is safe in scripts, servers and threads).
@@ -14,10 +15,11 @@ install.
 
 from __future__ import annotations
 
+import math
 import os
 from typing import TYPE_CHECKING, Any, List, Mapping, Optional, Sequence, Tuple, Union
 
-from .models import Problem, SolveResult
+from .models import DEFAULT_MODEL, Problem, SolveResult
 
 # matplotlib is optional, so its Axes type exists only for type checkers; at
 # run time the name is Any, so typing.get_type_hints resolves these
@@ -29,11 +31,26 @@ else:
 
 __all__ = ["plot_solution", "plot_cost", "save_figure"]
 
-#: The seed scenario's goal and obstacles: what the service uses when a problem omits them.
-_SEED_GOAL_STATE: Tuple[float, ...] = (4.0, 9.0, 0.0, 0.0, 0.0, 0.0)
-# What the service gives an obstacle that sets no weight (the seed's).
+# What the service gives an obstacle that sets no weight (the seed's), for every model.
 _DEFAULT_OBSTACLE_WEIGHT = 1000.0
-_SEED_OBSTACLES: Tuple[Tuple[Tuple[float, float], float], ...] = (((4.5, 4.5), _DEFAULT_OBSTACLE_WEIGHT),)
+
+_Obstacles = Tuple[Tuple[Tuple[float, float], float], ...]
+
+#: Each built-in model's default goal state and obstacles: what the service
+#: uses when a problem omits them (``GET /models``' default problems; a test
+#: checks them against the service). A problem of a model not named here
+#: that omits them has them drawn only when it gives them.
+_DEFAULTS: Mapping[str, Tuple[Tuple[float, ...], _Obstacles]] = {
+    "quadrotor_2d": ((4.0, 9.0, 0.0, 0.0, 0.0, 0.0), (((4.5, 4.5), _DEFAULT_OBSTACLE_WEIGHT),)),
+    "unicycle": ((4.0, 0.0, 0.0), (((2.0, 0.3), 50.0),)),
+}
+
+#: The state entry of the heading θ (counter-clockwise from the x axis) of
+#: the models whose path gets heading arrows.
+_HEADING = {"unicycle": 2}
+
+#: How many heading arrows a path gets at most.
+_ARROWS = 12
 
 PathLike = Union[str, "os.PathLike[str]"]
 
@@ -58,24 +75,33 @@ def _new_axes() -> Axes:
     return ax
 
 
+def _model_of(result: SolveResult, problem: Optional[Mapping[str, Any]]) -> str:
+    """The model solved for: the result's, else the problem's, else the default."""
+    if result.model is not None:
+        return result.model
+    model = problem.get("model") if problem is not None else None
+    kind = model.get("type") if isinstance(model, Mapping) else None
+    return kind if isinstance(kind, str) else DEFAULT_MODEL
+
+
 def _goal_and_obstacles(
-    problem: Union[Problem, Mapping[str, Any], None],
+    problem: Optional[Mapping[str, Any]], model: str,
 ) -> Tuple[Optional[Sequence[float]], List[Tuple[Sequence[float], float]]]:
     """The goal state and obstacles the service solved for.
 
     With no problem nothing is known (``None, []``). A problem that omits the
-    goal or the obstacles was solved with the seed scenario's, so those are used.
+    goal or the obstacles was solved with the model's defaults, so those are
+    used (none for a model this module does not know).
     """
     if problem is None:
         return None, []
-    if isinstance(problem, Problem):
-        problem = problem.to_dict()
+    default_goal, default_obstacles = _DEFAULTS.get(model, (None, ()))
     goal = problem.get("goal_state")
     if goal is None:
-        goal = _SEED_GOAL_STATE
+        goal = default_goal
     raw_obstacles = problem.get("obstacles")
     if raw_obstacles is None:
-        return goal, list(_SEED_OBSTACLES)
+        return goal, list(default_obstacles)
     obstacles = []
     for obstacle in raw_obstacles:
         if not isinstance(obstacle, Mapping):  # an Obstacle dataclass
@@ -90,18 +116,21 @@ def plot_solution(
     problem: Union[Problem, Mapping[str, Any], None] = None,
     ax: Optional[Axes] = None,
 ) -> Axes:
-    """Draw the optimised (x, y) trajectory.
+    """Draw the optimised path in the plane, for any model.
 
-    Draws the path, a start marker, an end marker and, when ``problem`` is
-    given, the goal position and each obstacle's centre with a dashed circle
-    whose radius is the trajectory's closest approach to it (so the path
-    touches the circle and never enters it).
+    The position is read from the state entries the model keeps it in
+    (:attr:`SolveResult.position_entries`). Draws the path, a start marker,
+    an end marker and, when ``problem`` is given, the goal position and each
+    obstacle's centre with a dashed circle whose radius is the trajectory's
+    closest approach to it (so the path touches the circle and never enters
+    it). A unicycle's path gets arrows along its heading θ.
 
     Args:
         result: The solve result.
         problem: The problem that was solved (a :class:`Problem` or a dict).
-            Fields it omits are taken to be the seed scenario's, as the
-            service does. Without it, goal and obstacles are not drawn.
+            Fields it omits are taken to be the model's defaults, as the
+            service does (for the models this client version knows). Without
+            it, goal and obstacles are not drawn.
         ax: Axes to draw on; a new pyplot figure when omitted.
 
     Returns:
@@ -115,13 +144,29 @@ def plot_solution(
 
     if ax is None:
         ax = _new_axes()
-    xs = [state[0] for state in result.states]
-    ys = [state[1] for state in result.states]
-    goal, obstacles = _goal_and_obstacles(problem)
+    document = problem.to_dict() if isinstance(problem, Problem) else problem
+    model = _model_of(result, document)
+    ix, iy = result.position_entries
+    xs = [state[ix] for state in result.states]
+    ys = [state[iy] for state in result.states]
+    goal, obstacles = _goal_and_obstacles(document, model)
     ax.plot(xs, ys, "-", color="tab:blue", linewidth=1.5, label="trajectory")
+    heading = _HEADING.get(model)
+    if heading is not None and len(result.states) > 1:
+        step = max(1, len(result.states) // _ARROWS)
+        knots = result.states[::step]
+        # Arrows of one length in data units: 8 % of the path's extent.
+        length = 0.08 * (max(max(xs) - min(xs), max(ys) - min(ys)) or 1.0)
+        ax.quiver(
+            [state[ix] for state in knots], [state[iy] for state in knots],
+            [length * math.cos(state[heading]) for state in knots],
+            [length * math.sin(state[heading]) for state in knots],
+            color="tab:purple", alpha=0.8, angles="xy", scale_units="xy", scale=1, pivot="tail",
+            width=0.004, label="heading",
+        )
     ax.plot(xs[0], ys[0], "o", color="tab:green", markersize=8, label="start")
     if goal is not None:  # drawn before the end marker, which usually sits on it
-        ax.plot(goal[0], goal[1], "*", color="tab:orange", markersize=16, label="goal")
+        ax.plot(goal[ix], goal[iy], "*", color="tab:orange", markersize=16, label="goal")
     ax.plot(xs[-1], ys[-1], "s", color="tab:blue", markersize=6, label="end")
     for j, (center, weight) in enumerate(obstacles):
         ax.plot(center[0], center[1], "x", color="tab:red", markersize=9, mew=2,
@@ -139,7 +184,7 @@ def plot_solution(
     ax.autoscale_view()
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
-    ax.set_title(f"trajectory: {result.status}, cost {result.cost:.6g}")
+    ax.set_title(f"{model}: {result.status}, cost {result.cost:.6g}")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     return ax
