@@ -36,17 +36,19 @@ pub static MODELS: [&dyn ServedModel; 2] = [
     }),
     &Served::<Unicycle, 3, 2>::new(DefaultProblem {
         // From the origin heading east to (4, 0) heading east, around an
-        // obstacle just off the straight line: 6 s in steps of 0.1 s.
+        // obstacle just off the straight line: 6 s in steps of 0.1 s. The
+        // goal is weighted at the end only, so the path does not rush past
+        // it and back.
         dt: 0.1,
         horizon: 60,
         initial_state: &[0.0, 0.0, 0.0],
         goal_state: &[4.0, 0.0, 0.0],
-        state_weights: &[1.0; 3],
+        state_weights: &[0.0; 3],
         control_weights: &[1.0; 2],
         terminal_weights: &[1000.0; 3],
         obstacles: &[Obstacle {
             center: [2.0, 0.3],
-            weight: 50.0,
+            weight: 5.0,
         }],
     }),
 ];

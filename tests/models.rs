@@ -318,6 +318,13 @@ fn a_result_warm_starts_a_solve_of_its_own_problem() {
             .any(|(p, d)| p == "/status" && d.contains("send it as the problem's `warm_start`")),
         "{posted_back:?}"
     );
+    // Its `model`, a name where a problem has an object, says so too.
+    assert!(
+        posted_back
+            .iter()
+            .any(|(p, d)| p == "/model" && d.contains("{\"type\": <name>}")),
+        "{posted_back:?}"
+    );
 }
 
 /// The service on a real socket, for the routes.

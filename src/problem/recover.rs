@@ -282,6 +282,13 @@ fn shape_error(e: serde_path_to_error::Error<serde_json::Error>) -> FieldError {
              become the initial guess)"
         );
     }
+    // A result's `model` is its name; a problem's is an object.
+    if pointer == "/model" && detail.starts_with("invalid type: string") {
+        detail = format!(
+            "{detail}: a problem names its model as {{\"type\": <name>}} (a result's `model` \
+             is the name alone; to start from a result, send it as the problem's `warm_start`)"
+        );
+    }
     // serde quotes the offending key or string whole: a 1 MB key would
     // make a 1 MB message, written again in the answer's `detail`.
     let detail = elide(detail);

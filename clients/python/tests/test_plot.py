@@ -73,12 +73,12 @@ def test_plot_solution_draws_a_unicycle_path(unicycle_result: SolveResult, figur
     path = lines["trajectory"]
     assert list(path.get_xdata()) == [state[0] for state in unicycle_result.states]
     assert list(path.get_ydata()) == [state[1] for state in unicycle_result.states]
-    # The unicycle's defaults: goal (4, 0), one obstacle at (2, 0.3) of weight 50.
+    # The unicycle's defaults: goal (4, 0), one obstacle at (2, 0.3) of weight 5.
     assert (list(lines["goal"].get_xdata()), list(lines["goal"].get_ydata())) == ([4.0], [0.0])
     circles = [patch for patch in ax.patches if hasattr(patch, "get_radius")]
     assert len(circles) == 1 and tuple(circles[0].center) == (2.0, 0.3)
     assert circles[0].get_radius() == pytest.approx(unicycle_result.closest_approach[0])
-    assert [text.get_text() for text in ax.texts] == ["q=50"]
+    assert [text.get_text() for text in ax.texts] == ["q=5"]
     # Heading arrows along θ, the third state entry.
     (arrows,) = [c for c in ax.collections if c.get_label() == "heading"]
     assert len(arrows.U) == len(unicycle_result.states[::5]) == 13

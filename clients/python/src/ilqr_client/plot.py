@@ -42,7 +42,7 @@ _Obstacles = Tuple[Tuple[Tuple[float, float], float], ...]
 #: that omits them has them drawn only when it gives them.
 _DEFAULTS: Mapping[str, Tuple[Tuple[float, ...], _Obstacles]] = {
     "quadrotor_2d": ((4.0, 9.0, 0.0, 0.0, 0.0, 0.0), (((4.5, 4.5), _DEFAULT_OBSTACLE_WEIGHT),)),
-    "unicycle": ((4.0, 0.0, 0.0), (((2.0, 0.3), 50.0),)),
+    "unicycle": ((4.0, 0.0, 0.0), (((2.0, 0.3), 5.0),)),
 }
 
 #: The state entry of the heading θ (counter-clockwise from the x axis) of
