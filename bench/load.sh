@@ -2,18 +2,18 @@
 # HTTP load test of the release binary on loopback, with wrk, against the
 # in-process ceiling measured in the same run.
 #
-#   bash bench/load.sh                   # about 3 minutes (3:06 in run WW)
+#   bash bench/load.sh                   # about 3 minutes
 #   ROUNDS=8 DURATION=20 bash bench/load.sh
 #
 # Everything goes to 127.0.0.1 only; every run is bounded in time; the
 # server is killed on exit (trap), whatever happens.
 #
 # 1. Saturation, ROUNDS times (default 6, of DURATION = 8 s each),
-#    alternating so that both sides see the same machine load. (Until
-#    2026-12-02: 4 x 12 s, and 2 x 10 s full. This host's speed drifts
-#    within a minute, and with two full rounds one odd minute moved the
-#    full figure by several points; more, shorter rounds give more samples
-#    of the drift in about the same time, not less drift.)
+#    alternating so that both sides see the same machine load. Many short
+#    rounds rather than a few long ones: a host's speed drifts within a
+#    minute, and with two rounds one odd minute can move a figure by several
+#    points; more, shorter rounds give more samples of the drift in about
+#    the same time, though no less drift.
 #    a. in-process: `HTTP_PATH_THROUGHPUT_SECS=$DURATION HTTP_PATH_THREADS=2
 #       cargo bench --bench http_path`: 2 threads run parse + validate +
 #       solve + serialise back to back (benches/http_path.rs), requests/s
@@ -216,8 +216,8 @@ compare(f"saturation, lean body (2 workers, queue 64, wrk -c{conns})", "lean",
 compare("saturation, gains+trace body", "full",
         [wrk(f"http-full-{i}") for i in range(1, full_rounds + 1)], inproc("full"))
 
-# Memory across the saturation runs: an unscraped service once kept every
-# histogram sample (58 B a solve, 17 MB a minute at saturation).
+# Memory across the saturation runs: an unscraped service that kept every
+# histogram sample would grow by 58 B a solve, 17 MB a minute at saturation.
 later = [wrk(f"http-lean-{i}")[1].get("200", 0) for i in range(2, rounds + 1)] + \
     [wrk(f"http-full-{i}")[1].get("200", 0) for i in range(1, full_rounds + 1)]
 grown = rss_saturated - rss_warm

@@ -13,8 +13,7 @@ them alike.
     python3 bench/overrun.py [--runs R] BINARY [BINARY ...]
 
 Standard library only. Obstacles are drawn uniformly in [-5, 10]^2 with
-weight 10 from random.seed(1), the set BENCHMARKS.md has used since
-2026-11-23.
+weight 10 from random.seed(1), the set BENCHMARKS.md's figures use.
 """
 
 import argparse

@@ -79,7 +79,7 @@ start_server "$BIN" "$SERVER_LOG" --read-timeout-secs 2 --workers 1
 stop_server
 trap - EXIT
 
-step "fuzz targets compile, lint clean (running them: README, Fuzzing)"
+step "fuzz targets compile, lint clean (running them: docs/testing.md, Fuzzing)"
 # With the root's release settings (Cargo.toml [profile.release]) instead of
 # fuzz/'s own, which differ for symbolised crash reports: the lint then
 # reuses most of what the root's clippy step above already checked and

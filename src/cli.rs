@@ -238,8 +238,8 @@ fn on_command_line(args: &[&str], long: &str) -> bool {
 /// loopback); `127.0.0.1:8080` when unset or empty, as for the server.
 ///
 /// An `ILQR_BIND` that is not IP:PORT is an error naming it: checking
-/// 127.0.0.1:8080 instead, as this once did, reported on some other
-/// service (or on nothing) while saying nothing of the typo.
+/// 127.0.0.1:8080 instead would report on some other service (or on
+/// nothing) while saying nothing of the typo.
 fn local_addrs() -> Result<Vec<std::net::SocketAddr>, String> {
     use std::net::{IpAddr, Ipv4Addr, Ipv6Addr, SocketAddr};
     let addr = match std::env::var_os("ILQR_BIND") {
@@ -606,8 +606,8 @@ fn pointer_label(pointer: &str) -> &str {
 }
 
 /// Six decimals where that shows the number (0.001 to 1e9, or 0), the
-/// same six significant places in exponent form elsewhere: `{:.6}` printed
-/// a cost of 5.4e-6 as 0.000005 and one of 5.2e37 as 38 digits.
+/// same six significant places in exponent form elsewhere: `{:.6}` alone
+/// prints a cost of 5.4e-6 as 0.000005 and one of 5.2e37 as 38 digits.
 fn six_places(x: f64) -> String {
     if x == 0.0 || (1e-3..1e9).contains(&x.abs()) || !x.is_finite() {
         format!("{x:.6}")

@@ -9,7 +9,8 @@
 //!   defaults and its validation with JSON pointers.
 //! * [`solve`]: builds the core problem from a document, runs the solver from
 //!   the `ilqr` crate and produces the [`solve::SolveResult`] document.
-//! * [`schema`]: OpenAPI schemas utoipa cannot derive (nested fixed arrays).
+//! * [`schema`]: OpenAPI schemas utoipa cannot derive (vectors whose length
+//!   is the model's, nested objects that also take null).
 //! * [`service`]: the solve service every transport calls: validation,
 //!   admission against the expected wait, time budgets, the worker pool,
 //!   cancellation, draining and the solve metrics.

@@ -191,12 +191,12 @@ pub struct Gains {
     /// `cancelled`; `no_progress` only where the derivatives overflow) after
     /// an accepted step but before the backward pass about the new iterate
     /// completed (while linearising about it, during the pass, or while
-    /// raising the regularisation): the gains are then
-    /// the previous iterate's, one accepted step away: a fallback. At the
-    /// last knot `K` was 0–12% off with one to six obstacles and 2–60% off
-    /// with 100 (the cases measured), and `feedforward` 7.8% to over
-    /// 1000% off. Common when a tight `time_limit_ms` stops a long horizon; never
-    /// at N below 128 unless the regularisation was being raised.
+    /// raising the regularisation): the gains are then the previous
+    /// iterate's, one accepted step away: a fallback, whose `feedback` is
+    /// further off the more obstacles there are, and whose `feedforward`
+    /// can be off by more than its own size (see docs/limits.md). Common
+    /// when a tight `time_limit_ms` stops a long horizon; never at N below
+    /// 128 unless the regularisation was being raised.
     pub about_previous_iterate: bool,
 }
 
@@ -631,12 +631,12 @@ impl SolveResult {
 /// the position.
 fn closest_approach(states: &Rows, position: (usize, usize), center: [f64; 2]) -> f64 {
     // Squared distances pick the nearest point, and `hypot` (about 20 ns,
-    // five times the rest of a segment's work) runs once, on it: at
-    // N = 10000 with 100 obstacles the million calls took about 13 ms per
+    // five times the rest of a segment's work) runs once, on it: at N = 10000
+    // with 100 obstacles a call per segment would add about 13 ms to an
     // answer. Squares overflow past 1.3e154 m; if every point is that far,
     // the slow loop below measures them. (They underflow below 1.5e-154 m,
-    // where the first such point is taken as the nearest: an error far
-    // below any distance that matters.)
+    // where the first such point is taken as the nearest: an error far below
+    // any distance that matters.)
     let mut best = f64::INFINITY;
     let mut nearest = None;
     for_each_nearest_point(states, position, center, |a, b| {
@@ -724,8 +724,8 @@ mod tests {
             let ms = serde_json::to_string(&millis(Duration::from_nanos(nanos))).unwrap();
             assert_eq!(ms, json);
         }
-        // The old expression, for contrast: the test's first case is one
-        // it got wrong.
+        // `as_secs_f64() * 1e3`, for contrast: the test's first case is one
+        // it gets wrong.
         assert_ne!(
             (Duration::from_nanos(43_688_900).as_secs_f64() * 1e3).to_string(),
             "43.6889"

@@ -70,8 +70,8 @@ fn a_taken_port_names_the_flag_that_moves_the_service() {
 #[test]
 fn settings_out_of_range_are_rejected_before_serving() {
     for (args, says) in [
-        // Each range in words, with the value given: these said "number
-        // would be zero for non-zero type" and "0 is not in
+        // Each range in words, with the value given, not clap's "number
+        // would be zero for non-zero type" or "0 is not in
         // 1..18446744073709551615".
         (
             &["--workers", "0"][..],
@@ -110,8 +110,8 @@ fn settings_out_of_range_are_rejected_before_serving() {
              expected at least 1 ms, got 0",
         ),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
-        // Not numbers, or negative: these said "invalid digit found in
-        // string" and "unexpected argument '-1' found".
+        // Not numbers, or negative: not "invalid digit found in string" or
+        // "unexpected argument '-1' found".
         (
             &["--queue-capacity", "lots"],
             "invalid value 'lots' for '--queue-capacity <QUEUE_CAPACITY>': \
@@ -130,8 +130,9 @@ fn settings_out_of_range_are_rejected_before_serving() {
             &["--workers", "-2"],
             "invalid value '-2' for '--workers <WORKERS>': expected 1 to 1024 threads, got \"-2\"",
         ),
-        // These passed, logged "listening", then failed: every connection
-        // panicked in hyper's timer, or the pool reserved the whole queue.
+        // Accepted, these would log "listening" and then fail: every
+        // connection would panic in hyper's timer, or the pool would reserve
+        // the whole queue.
         (
             &["--read-timeout-secs", "10000000000000000000"],
             "invalid value '10000000000000000000' for '--read-timeout-secs <READ_TIMEOUT_SECS>': \
@@ -363,11 +364,10 @@ fn a_variable_that_is_not_utf8_is_named() {
     assert!(stderr.contains("invalid UTF-8 was detected"), "{stderr}");
 }
 
-/// The serve flags work without `serve` (the README's `cargo run
-/// --release -- --bind ...`, refused as "unexpected argument" before),
-/// but not before another subcommand; and the serve settings' variables
-/// are read only by serving, so a bad one does not stop `solve`,
-/// `openapi` or `healthcheck`.
+/// The serve flags work without `serve` (docs/cli.md's
+/// `ilqr-service --bind 127.0.0.1:9000`), but not before another subcommand;
+/// and the serve settings' variables are read only by serving, so a bad one
+/// does not stop `solve`, `openapi` or `healthcheck`.
 #[test]
 fn serve_flags_work_at_the_top_level() {
     let (_server, bind) = serve_on_free_port(|cmd, bind| {
@@ -457,8 +457,8 @@ fn an_empty_variable_counts_as_unset() {
 }
 
 /// The health check's 2 s cover connect, write and every read together: a
-/// peer that trickles its answer a byte every 300 ms cannot stretch it (each
-/// read had its own 2 s, so this took 4 s and more), and the addresses after
+/// peer that trickles its answer a byte every 300 ms cannot stretch it (with
+/// 2 s for each read, it would take 4 s and more), and the addresses after
 /// it fail at once.
 #[test]
 fn the_healthcheck_deadline_covers_a_trickling_answer() {
@@ -585,7 +585,7 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     assert!(stderr.starts_with("unhealthy: "), "{stderr}");
 
     // A service bound to one specific address is checked there, not on
-    // 127.0.0.1 (which used to be assumed whatever ILQR_BIND said).
+    // 127.0.0.1.
     let (_other, other) = serve_on_free_port_of("127.0.0.2", |cmd, bind| {
         cmd.arg("serve")
             .env("ILQR_BIND", bind)
@@ -596,8 +596,8 @@ fn healthcheck_follows_ilqr_bind_and_fails_when_nothing_answers() {
     assert_eq!(check(&[("ILQR_BIND", &other)]), (Some(0), String::new()));
 
     // An ILQR_BIND that is not IP:PORT is an error naming it and the way
-    // around it, not a check of 127.0.0.1:8080 (which it silently was);
-    // with an address given, it is not read.
+    // around it, not a silent check of 127.0.0.1:8080; with an address
+    // given, it is not read.
     let (code, stderr) = check(&[("ILQR_BIND", "garbage")]);
     assert_eq!(code, Some(1), "{stderr}");
     assert_eq!(
@@ -715,7 +715,7 @@ fn a_config_built_in_code_is_checked_too() {
 }
 
 /// `text` logs carry no colour escapes when stdout is not a terminal (a
-/// file, a pipe, `docker logs`): they used to, on every line.
+/// file, a pipe, `docker logs`), where they would be noise on every line.
 #[test]
 fn text_logs_to_a_pipe_have_no_colour_escapes() {
     let (mut server, _) = serve_on_free_port(|cmd, bind| {
@@ -740,8 +740,8 @@ fn serve_quietly() -> (Child, String) {
 }
 
 /// The running service folds histogram samples into buckets on a thread of
-/// its own: without it they were kept until `/metrics` was scraped, and an
-/// unscraped service grew by 2.9 MB per 10 s at saturation.
+/// its own: without it they would be kept until `/metrics` is scraped, and
+/// an unscraped service would grow by 2.9 MB per 10 s at saturation.
 #[cfg(target_os = "linux")]
 #[test]
 fn metrics_upkeep_runs_without_a_scrape() {
@@ -819,7 +819,7 @@ fn exchange(addr: &str, request: &str) -> String {
 }
 
 /// The log line of a 4xx says why, with the problem's type, title and
-/// detail (it said only `status=422 latency_ms=...`), under the request's
+/// detail (not only `status=422 latency_ms=...`), under the request's
 /// id, in both formats; the detail is cut to 300 characters, and the body
 /// is not logged.
 #[test]
@@ -932,9 +932,9 @@ fn a_client_error_is_logged_with_its_reason() {
 /// The JSON log's schema, as a typed log store needs it: the solve's
 /// outcome is `solve_status` (a string; `status` is the HTTP status, a
 /// number), the request's span appears once (`span`, no `spans` copy); a
-/// 503 for a full queue leaves no line above `debug` (it wrote a warning
-/// each, 12 MB/s of log at saturation; `solve_rejections_total` counts
-/// them); a `RUST_LOG` that cannot be read is said, not silently replaced;
+/// 503 for a full queue leaves no line above `debug` (a warning each would
+/// be 12 MB/s of log at saturation; `solve_rejections_total` counts them);
+/// a `RUST_LOG` that cannot be read is said, not silently replaced;
 /// the "listening" line gives the effective settings.
 #[test]
 fn json_logs_keep_one_type_per_field_and_overload_does_not_flood_them() {

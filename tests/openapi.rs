@@ -43,8 +43,8 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
         }
     }
     // Every route answers 404 (a wrong path or prefix) and 405 (a wrong
-    // method) with a problem document; a generated client dropped the body
-    // of a status its operation did not declare.
+    // method) with a problem document; a generated client drops the body
+    // of a status its operation does not declare.
     for (path, item) in paths {
         for (method, operation) in item.as_object().unwrap() {
             for status in ["404", "405"] {
@@ -61,7 +61,7 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
             );
         }
     }
-    // No default object beside a $ref (openapi-generator's Go did not
+    // No default object beside a $ref (openapi-generator's Go does not
     // compile with them); the referenced schemas carry per-field defaults.
     for (name, schema) in spec["components"]["schemas"].as_object().unwrap() {
         for (field, property) in schema["properties"].as_object().into_iter().flatten() {
@@ -205,7 +205,7 @@ fn the_spec_states_the_defaults_the_code_applies() {
         for (name, property) in properties {
             // The time budget's default is the service's configured one,
             // stated in words only: as a schema default, generated clients
-            // sent it and overrode it.
+            // would send it and override it.
             if name == "time_limit_ms" {
                 assert!(property.get("default").is_none(), "{property}");
                 continue;

@@ -95,8 +95,8 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
     // Every number of the answer survives JSON both ways: parsed back by the
     // same parser the service uses, the controls roll out to the same states
     // and so to the same cost, bit for bit.
-    // The second problem's thrusts pass 1e6 N, the bound on
-    // `initial_controls` once, which refused them.
+    // The second problem's thrusts pass 1e6 N, which `initial_controls`
+    // takes back: its bound is far above any control a valid problem needs.
     let cancel = AtomicBool::new(false);
     let heavy = json!({"model": {"mass": 3e5}, "weights": {"control": [1e-9, 1e-9]}});
     for (problem, thrusts_above) in [(json!({}), 0.0), (heavy, 1e6)] {
@@ -122,9 +122,8 @@ fn a_result_posted_back_as_a_warm_start_rolls_out_to_its_own_cost() {
 /// first linearisation polls it, at knot 128) ends during its first
 /// linearisation, and the answer (`cancelled`, 0 iterations, the initial guess)
 /// leaves the gains out rather than sending zeros that read as an
-/// open-loop policy. (`dt = 10` used to be the example: its first pass
-/// failed at every μ; the convex fallback now solves it.) A solve with
-/// even one complete pass keeps them, `max_iterations: 0` included.
+/// open-loop policy. A solve with even one complete pass keeps them,
+/// `max_iterations: 0` included.
 #[test]
 fn gains_are_left_out_when_no_backward_pass_completed() {
     let cancelled = AtomicBool::new(true);
@@ -282,10 +281,10 @@ fn the_cli_names_the_file_that_is_not_json() {
 }
 
 /// A reader that closes standard output before the answer is written
-/// (`solve -o - | head`) ends the command quietly with exit code 0, as a
-/// Unix filter does: it said "error: cannot write -: Broken pipe" and
-/// exited 1 (and without `-o`, the summary's `print!` panicked). The pipe
-/// is closed before the command starts, so it is closed at every write.
+/// (`solve -o - | head`) ends the command quietly with exit code 0, as a Unix
+/// filter does, not with "error: cannot write -: Broken pipe" and exit code 1
+/// (nor, without `-o`, with a panic in the summary's `print!`). The pipe is
+/// closed before the command starts, so it is closed at every write.
 #[test]
 fn a_closed_stdout_pipe_ends_the_cli_quietly() {
     use std::process::Command;
@@ -705,8 +704,8 @@ fn an_interrupted_cli_solve_writes_its_best_trajectory() {
 
 /// `convexified_after_iteration` is absent for the seed, and says when a
 /// solve fell back to the convex model of the cost: a 200 s flight
-/// (N = 4000, dt = 0.05) from a guess a hair above hover, which used to end
-/// `no_progress` after 2 iterations.
+/// (N = 4000, dt = 0.05) from a guess a hair above hover, where the exact
+/// Hessian can do no more after 2 iterations.
 #[test]
 fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
     let cancel = AtomicBool::new(false);
@@ -758,8 +757,8 @@ fn the_result_says_when_the_solve_fell_back_to_the_convex_model() {
     );
 
     // A fallback whose convex model completed no pass either has no gains
-    // to attribute to a model (the summary said "the exact Hessian took
-    // over again"). Its cost, 1.8e24, is written in exponent form.
+    // to attribute to a model (the summary does not say "the exact Hessian
+    // took over again"). Its cost, 1.8e24, is written in exponent form.
     let stuck = spec(json!({
         "model": {"mass": 1e-6, "inertia": 1e-6, "arm_length": 1e6, "gravity": 1e4},
         "dt": 10,
@@ -1012,10 +1011,11 @@ fn closest_approach_stops_at_the_segment_end() {
 }
 
 /// DDP's dynamics curvature can make `V_xx` indefinite where no μ on
-/// `Q_uu` helps. Without obstacles there was no fallback (nothing to
-/// convexify), and this problem ended `no_progress` at iteration 0 with no
-/// gains, where iLQR converges in 6. The convex model now also drops the
-/// curvature, so DDP falls back to iLQR's model and converges with it.
+/// `Q_uu` helps, even without obstacles, where the cost has nothing to
+/// convexify: without a fallback this problem would end `no_progress` at
+/// iteration 0 with no gains, where iLQR converges in 6. The convex model
+/// also drops the dynamics' curvature, so DDP falls back to iLQR's model
+/// and converges with it.
 #[test]
 fn ddp_without_obstacles_falls_back_to_the_first_order_model() {
     let cancel = AtomicBool::new(false);

@@ -197,7 +197,7 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
         (br#"{"obstacles": [NaN]}"#, "/obstacles/0", "got NaN,"),
         // Null is taken at both, so what a null is told says nothing of
         // what goes there: what a number is told does (an array; an
-        // object). Told as "a finite number" before.
+        // object), not "a finite number".
         (
             br#"{"initial_controls": NaN}"#,
             "/initial_controls",
@@ -258,8 +258,9 @@ fn bare_nan_and_infinity_are_bad_values_at_their_pointer() {
 
 /// Where the member holding a bare NaN is wrong itself, that is what the
 /// NaN is told; where the rest of the document could not be checked, the
-/// NaN is told nothing of what its place takes. Both used to be told
-/// "expected a finite number" (a review's cases).
+/// NaN is told nothing of what its place takes. Neither is told "expected
+/// a finite number": in the first a number would be wrong too, in the
+/// second it is not known to be right.
 #[test]
 fn a_bare_nan_is_told_what_is_known_of_its_place() {
     let told = |doc: &[u8]| {
@@ -362,11 +363,11 @@ fn nesting_beyond_the_parser_limit_is_told_at_its_member() {
     }
 }
 
-/// A document may hold at most `MAX_OBJECTS` JSON objects: past that,
-/// reading stops with an error at the next one (a 4 MB body of `{"a":1}`
-/// built 363 MiB before the bound). Among obstacles it is told as too many
-/// obstacles. The largest valid problem is far inside the bound, and a
-/// syntax error later in the document still wins.
+/// A document may hold at most `MAX_OBJECTS` JSON objects: past that, reading
+/// stops with an error at the next one (a 4 MB body of `{"a":1}` would build
+/// 363 MiB without the bound). Among obstacles it is told as too many
+/// obstacles. The largest valid problem is far inside the bound, and a syntax
+/// error later in the document still wins.
 #[test]
 fn a_document_holds_a_bounded_number_of_objects() {
     let first = |doc: &str| match parse(doc.as_bytes()) {
@@ -680,7 +681,7 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
             "invalid length 3, expected an array of length 2".into()
         )
     );
-    // Names are strings only: serde alone also took `{"euler": null}`.
+    // Names are strings only: serde alone also takes `{"euler": null}`.
     for doc in [
         json!({"integrator": {"euler": null}}),
         json!({"integrator": ["euler"]}),
@@ -706,8 +707,8 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         ["/solver/method"],
         "one error for one value: {detail}"
     );
-    // Nested structs are objects only: serde alone filled them from arrays
-    // in field order, so `{"solver": [5]}` set max_iterations to 5. The
+    // Nested structs are objects only: serde alone fills them from arrays in
+    // field order, so `{"solver": [5]}` would set max_iterations to 5. The
     // four members with defaults also take null (an obstacle has none).
     const OR_NULL: &str = "expected a JSON object, or null for the defaults";
     for (doc, pointer, expected) in [
@@ -756,8 +757,8 @@ fn shape_errors_say_what_was_expected_at_the_field_itself() {
         shape_error(json!({"horizon": 1e20})).1,
         "1e20 is too large: expected an integer from 1 to the maximum horizon (10000 unless configured lower)"
     );
-    // Numbers are written alike on both sides of the range (serde wrote the
-    // negative one `-1e+30`).
+    // Numbers are written alike on both sides of the range (serde writes
+    // the negative one `-1e+30`).
     assert_eq!(
         shape_error(json!({"horizon": -1e30})).1,
         "invalid value: number -1e30, expected an integer from 1 to the maximum horizon \
@@ -1193,9 +1194,9 @@ fn the_list_of_wrong_shapes_is_capped_and_its_rereads_bounded() {
     assert!(invalid.incomplete);
     // Wrong rows stand in for one per read, but the last fix takes out
     // their array, so the last read still checks the rest: 8 bad rows in
-    // a document with 7 reads, and the bad dt is still listed (a review's
-    // case; standing in to the end, it was not). Rows 6 and 7 went
-    // unchecked with the array, which the list says.
+    // a document with 7 reads, and the bad dt is still listed (standing in
+    // to the end would leave it unchecked). Rows 6 and 7 go unchecked with
+    // the array, which the list says.
     let mut rows = vec![json!([4.905, 4.905]); 10_000];
     for row in rows.iter_mut().take(8) {
         *row = json!([null, 4.905]);
@@ -1281,7 +1282,7 @@ proptest! {
 /// A huge key is in the pointer of every error under it: past the first
 /// error, the list holds at most `MAX_REPORTED_BYTES` of pointers and
 /// messages, and the rest are counted. Without that cap, 60 repeated keys
-/// under a 100 kB key gave 6 MB of errors for a 100 kB body.
+/// under a 100 kB key would give 6 MB of errors for a 100 kB body.
 #[test]
 fn errors_under_a_huge_key_are_listed_up_to_a_byte_cap() {
     use ilqr_service::problem::MAX_REPORTED_BYTES;

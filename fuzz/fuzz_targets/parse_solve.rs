@@ -56,8 +56,8 @@ fuzz_target!(|data: &[u8]| {
             common::check_result(&r, "parse_solve");
         }
         // A validated problem the solver refuses: the service answers 422
-        // with this pointer; README: "The ranges guarantee that no valid
-        // problem overflows", so this should not happen.
+        // with this pointer; docs/api.md: "The ranges guarantee that no
+        // valid problem overflows", so this should not happen.
         Err(u) => panic!("validated problem unsolvable: {:?}", u.0),
     }
 });

@@ -107,14 +107,13 @@ impl Shapes {
 /// A leading UTF-8 byte order mark is skipped.
 ///
 /// Valid JSON that cannot be read into a value is a shape error at the
-/// pointer where reading stopped, as the issue asks for NaN: a number beyond
-/// the range of f64 (`1e999`, JSON's nearest to Infinity), a string with an
-/// unpaired surrogate escape (`"\ud800"`), and nesting 128 levels deep or
-/// more (serde_json's limit). So is a bare `NaN` or `Infinity` (not JSON,
-/// but what Python's `json.dumps` writes). The document is then checked
-/// again for UTF-8 and grammar (with those tokens masked), so that a syntax
-/// error anywhere still wins. Such a document is not read further: it
-/// reports that one value.
+/// pointer where reading stopped: a number beyond the range of f64 (`1e999`,
+/// JSON's nearest to Infinity), a string with an unpaired surrogate escape
+/// (`"\ud800"`), and nesting 128 levels deep or more (serde_json's limit). So
+/// is a bare `NaN` or `Infinity` (not JSON, but what Python's `json.dumps`
+/// writes). The document is then checked again for UTF-8 and grammar (with
+/// those tokens masked), so that a syntax error anywhere still wins. Such a
+/// document is not read further: it reports that one value.
 pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
     // RFC 8259 §8.1 lets a parser ignore a leading byte order mark, and
     // Windows tools often write one; anywhere else it is not JSON.
@@ -163,7 +162,7 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         };
         // Under a member taken out or stood in for before: a required
         // member taken out and now missing, or a stand-in that does not
-        // fit (neither happens with today's schema, whose one required
+        // fit (neither happens with this schema, whose one required
         // member, an obstacle's `center`, is stood in for). Take out, or
         // stand in for, the value above it instead, without a second error.
         let from = match shapes
@@ -180,8 +179,8 @@ pub fn parse(bytes: &[u8]) -> Result<ProblemSpec, ParseError> {
         // A stand-in fixes one element per read, taking out the array all
         // of them: so the fix before the last read takes out, and that
         // read can still check the rest's ranges (a large document with
-        // many bad rows has few reads; standing in to the end, it had its
-        // range errors elsewhere unreported). The array's other elements
+        // many bad rows has few reads; standing in to the end would leave
+        // its range errors elsewhere unreported). The array's other elements
         // are then unchecked, and the list says so.
         if read + 2 < reads {
             if stand_in(&mut value, &from) {
@@ -219,9 +218,9 @@ pub const RETRY_BYTES: usize = 1 << 20;
 /// `solver`, `output` and one per obstacle), so this leaves ten times that
 /// for shapes to come. Why a bound at all: `serde_json::Value` stores an
 /// object as a B-tree whose first node takes about 650 bytes whatever it
-/// holds, so a 4 MB body of `{"a":1}` built 363 MiB (90 times its text,
-/// against at most about 25 times for arrays, strings and numbers), and
-/// the allocator kept most of it after the answer.
+/// holds, so a 4 MB body of `{"a":1}` would build 363 MiB (90 times its
+/// text, against at most about 25 times for arrays, strings and numbers),
+/// and the allocator keeps most of such a peak after the answer.
 pub const MAX_OBJECTS: usize = 1024;
 
 /// The start of the serde error [`ValueNoting`] raises past
@@ -734,7 +733,7 @@ impl<'de> Visitor<'de> for ValueNoting<'_> {
         let mut object = serde_json::Map::new();
         // The keys of this object already reported as repeated: each once,
         // however often it repeats ("a" 600 000 times under a megabyte key
-        // took 11 s when every repeat compared its whole pointer).
+        // would take 11 s if every repeat compared its whole pointer).
         let mut reported = std::collections::HashSet::new();
         while let Some(key) = map.next_key::<String>()? {
             let len = self.path.len();

@@ -33,7 +33,7 @@ pub const MAX_REPORTED_ERRORS: usize = 100;
 /// together, the first error apart (always listed; its pointer is at most
 /// the body's size); the rest are counted in [`Invalid::unlisted`]. A key
 /// of a megabyte is in the pointer of every error under it: with a hundred
-/// of them, a 4 MiB body made a 400 MB answer.
+/// of them, a 4 MiB body would make a 400 MB answer.
 pub const MAX_REPORTED_BYTES: usize = 64 * 1024;
 
 /// Why a problem was rejected: its invalid values, listed up to a cap.
@@ -94,7 +94,7 @@ impl Checker {
         // parent key holds two objects with the same pointers). Past the
         // list only counted, without comparing: under a megabyte key each
         // comparison reads the megabyte, and 150 000 repeated keys under
-        // one took 5.7 s of parsing.
+        // one would take 5.7 s of parsing.
         if self.listing_open() && self.repeated.iter().any(|r| r == pointer) {
             return;
         }

@@ -342,7 +342,7 @@ impl<'de> Visitor<'de> for Count {
             )))
         } else {
             // serde's own message, with the number written as every other
-            // message writes it (serde wrote -1e30 as `-1e+30`).
+            // message writes it (serde writes -1e30 as `-1e+30`).
             Err(E::custom(format_args!(
                 "invalid value: number {}, expected {}",
                 num(v),

@@ -153,8 +153,8 @@ mod backward {
 
     /// With the pattern when `STATED`. Named in the call itself, so that it
     /// is a constant there, as in the solver: held in a variable the closure
-    /// captured, it was read at run time (as many instructions per knot as
-    /// without a pattern, `valgrind --tool=callgrind`).
+    /// captures, it would be read at run time (as many instructions per
+    /// knot as without a pattern, `valgrind --tool=callgrind`).
     fn one_knot<const STATED: bool>(bencher: Bencher) {
         let problem = seed_problem(100, 0.05);
         let x = problem.x0;

@@ -4,9 +4,11 @@
 //! (`[[f64; R]; C]`, one array per column) with loop bounds known at compile
 //! time, mostly as `y += a·x` over a column ("axpy"), the shape LLVM unrolls
 //! and vectorises well for tiny matrices. nalgebra's generic products on
-//! fixed sizes call out of line and were most of the backward pass.
+//! fixed sizes call out of line, and those calls would be most of the
+//! backward pass.
 //!
-//! Three choices that matter for speed (measured in BENCHMARKS.md):
+//! Three choices that matter for speed (BENCHMARKS.md, "Solver", times the
+//! Riccati step with the first one's zeros known and tested):
 //!
 //! * Products with the dynamics Jacobians skip their zeros. `A = I + dt·∂f/∂x`
 //!   and `B = dt·∂f/∂u` of mechanical models are mostly zeros (for the planar
@@ -14,11 +16,11 @@
 //!   `V_xx·A` and `Aᵀ·V_xx·A` shrink to a third. Where the model states its
 //!   pattern ([`crate::Sparsity`]) the skipped entries are known when the
 //!   solver is compiled for it, and nothing is tested at run time
-//!   ([`Nonzeros::Known`]); that took 27% off a seed solve's
-//!   instructions. Otherwise each entry is tested at run time
-//!   ([`Nonzeros::Tested`]): dense models lose only the compare. Skipping
-//!   `0·x` changes a result only when `x` is infinite or NaN, and the
-//!   Riccati step rejects non-finite gains either way.
+//!   ([`Nonzeros::Known`]): a seed solve runs about a quarter fewer
+//!   instructions than with the tests. Otherwise each entry is tested at
+//!   run time ([`Nonzeros::Tested`]): dense models lose only the compare.
+//!   Skipping `0·x` changes a result only when `x` is infinite or NaN, and
+//!   the Riccati step rejects non-finite gains either way.
 //! * Symmetric results (`Q_xx`, `V_xx`) are formed as lower triangles and
 //!   mirrored: half the work, and exactly symmetric whatever the rounding.
 //! * `Q_uu + μI` is factorised as `L D Lᵀ`, with one division per pivot and
@@ -170,8 +172,8 @@ pub(crate) fn add_mul_lower<const N: usize, const K: usize>(
 
 /// Copy the lower triangle of `m` into `out`, leaving `out`'s upper
 /// triangle alone. Element by element on purpose: a whole-matrix
-/// assignment compiles to a `memcpy` call, which cost about 6% of a seed
-/// solve when called once per knot of every backward pass.
+/// assignment compiles to a `memcpy` call, which would cost about 6% of a
+/// seed solve at one call per knot of every backward pass.
 #[inline(always)]
 pub(crate) fn copy_lower<const N: usize>(out: &mut [Col<N>; N], m: &[Col<N>; N]) {
     for j in 0..N {

@@ -17,8 +17,8 @@ thread_local! {
     /// its own threads while a test runs.
     static COUNTING: Cell<bool> = const { Cell::new(false) };
     /// And count them per thread: with one global count, the tests running
-    /// at once on other threads added their own counted allocations (the
-    /// first test's deliberate Vec) to this one's window.
+    /// at once on other threads would add their own counted allocations
+    /// (the first test's deliberate Vec) to this one's window.
     static ALLOCATIONS: Cell<usize> = const { Cell::new(0) };
 }
 

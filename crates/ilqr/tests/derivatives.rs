@@ -270,7 +270,7 @@ fn check_convex_projection(
     Ok(())
 }
 
-/// Found by the proptest above (1 case in about 4000): just inside the
+/// A case the proptest above draws about once in 4000: just inside the
 /// 1 mm clamp, the clamped exact Hessian's radial eigenvalue is still
 /// positive (down to 0.9995 mm), and the projection keeps it.
 #[test]

@@ -1,7 +1,7 @@
 //! Cancellation and the time budget are polled inside the long passes, not
 //! only between them: a pass over N knots with many obstacles costs
 //! milliseconds (20 ms at N = 10000 with 100 obstacles), which is how late
-//! an answer came when only the driver loop polled.
+//! an answer would come if only the driver loop polled.
 //!
 //! The tests trip the cancellation flag from inside the cost at a chosen
 //! call, so where the solve stops is deterministic (a clock would not be),
@@ -105,7 +105,7 @@ fn solve_tripped(trip: Trip) -> (Solver<6, 2>, ilqr::Summary, usize, usize) {
 
 /// Where the trips fall: 100 knots into a pass. With a poll interval P the
 /// pass stops after P − 1 knots, so the bounds (under 100 + 128) fail for
-/// P ≥ 229; the unit tests in `solver.rs` pin the interval itself.
+/// P ≥ 229; the unit tests in `solver/passes.rs` pin the interval itself.
 const TRIP: usize = 100;
 
 #[test]

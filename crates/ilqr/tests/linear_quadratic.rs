@@ -21,19 +21,19 @@
 //! * with the default `mu_init = 1` the steps are damped, and the solve
 //!   takes six or seven iterations instead and stops at the tolerance, not
 //!   at the optimum: cost within 1e-9 of it, controls only within 1e-5
-//!   (measured 1.6e-6 to 4.9e-6), where `Converged` is declared on the
+//!   (1.6e-6 to 4.9e-6 here), where `Converged` is declared on the
 //!   model's prediction of a gain below `tolerance·|J|` without taking
 //!   that last step.
 //!
-//! The checks were seen failing: with the goal's sign flipped in the
-//! batch's right-hand side or the terminal weight `Q_f` replaced by `Q` in
-//! it (every test), the batch's gain without its minus sign (the gains),
-//! the closed loop's gains scaled by 1 + 1e-6 (the closed loop), the
-//! solver's `K` scaled by 1 + 1e-6 (all but the closed form), its
-//! predicted `½ dᵀQ_uu d` by 1 + 1e-6 (the model's prediction),
+//! Planted errors the checks catch (the tests that fail in brackets): the
+//! goal's sign flipped in the batch's right-hand side or the terminal weight
+//! `Q_f` replaced by `Q` in it (every test), the batch's gain without its
+//! minus sign (the gains), the closed loop's gains scaled by 1 + 1e-6 (the
+//! closed loop), the solver's `K` scaled by 1 + 1e-6 (all but the closed
+//! form), its predicted `½ dᵀQ_uu d` by 1 + 1e-6 (the model's prediction),
 //! `mu_init = 1` in place of 0 (one iteration), and in the damped test a
-//! tolerance of 1e-6 (cost), `mu_factor = 1.3` (controls) and
-//! `mu_init = 100` (eight iterations).
+//! tolerance of 1e-6 (cost), `mu_factor = 1.3` (controls) and `mu_init = 100`
+//! (eight iterations).
 #![allow(non_snake_case)]
 
 use crate::common;
@@ -347,7 +347,7 @@ fn relative_error<const R: usize, const C: usize>(
 /// `u_init`, and assert it is the batch optimum, reached by one full step
 /// that gained exactly what the model predicted. `what` names the case.
 ///
-/// Measured on every case here: one iteration; the first step's actual
+/// On every case here: one iteration; the first step's actual
 /// reduction within 8.1e-15 of its prediction, relative; cost within
 /// 3.1e-14 of the batch's, relative; controls and states within 1.4e-11
 /// and 2.9e-11 (the cart-pole at N = 50, whose pole grows 1.23× a step;
@@ -491,7 +491,7 @@ fn one_step_matches_the_closed_form() {
 /// two random systems (one stable, one not). At the optimum the
 /// feedforward `d_k` (the next step) is zero too.
 ///
-/// Measured: gains within 1.3e-12 of the batch's, relative (the
+/// The gains come within 1.3e-12 of the batch's, relative (the
 /// cart-pole at N = 50; the random systems within 1.2e-15); feedforward
 /// at most 1.1e-11 of the controls' size.
 #[test]
@@ -555,8 +555,8 @@ fn the_feedback_gains_are_the_slope_of_the_batch_optimum() {
 /// large `δ`. Five random `δ` per problem, each component up to the
 /// largest of `x0`'s.
 ///
-/// Measured: closed-loop controls within 1.6e-11 of the batch's,
-/// relative, and final states within 7e-12 (the cart-pole at N = 50).
+/// The closed-loop controls come within 1.6e-11 of the batch's, relative, and
+/// the final states within 7e-12 (the cart-pole at N = 50).
 #[test]
 fn the_closed_loop_from_a_perturbed_start_is_the_batch_optimum_from_there() {
     fn check<const NX: usize, const NU: usize>(
@@ -621,7 +621,7 @@ fn the_closed_loop_from_a_perturbed_start_is_the_batch_optimum_from_there() {
 /// LQ is the problem itself). The schedule lowers μ after each
 /// (1, 0.625, 0.244, 0.060, 0.0091, 8.7e-4, 5.2e-5), so the cart-pole
 /// takes 6 iterations at N = 1 and 7 at N = 2 and 50. The bound asserted
-/// is the one measured; more would mean a damped step was rejected or the
+/// is exactly that; more would mean a damped step was rejected or the
 /// convergence test missed the optimum.
 ///
 /// It ends where the model about the iterate predicts a full step would
@@ -629,7 +629,7 @@ fn the_closed_loop_from_a_perturbed_start_is_the_batch_optimum_from_there() {
 /// is met to the tolerance, not exactly: cost 1.8e-13 to 6.2e-13 above
 /// the batch's, relative (the batch's `‖M(U − U*)‖²` agrees), but
 /// controls 1.6e-6 to 4.9e-6 off, relative, against 1.4e-11 from an
-/// undamped start. The controls' bound, 1e-5, is the measured one too.
+/// undamped start. The controls' bound, 1e-5, is just above that spread.
 #[test]
 fn the_default_damped_start_reaches_the_optimum_to_the_tolerance_in_seven_iterations() {
     let lq = cart_pole();

@@ -17,10 +17,10 @@
 //!   the convex fallback is only claimed stationary (the fallback cannot
 //!   tell a minimum from a maximum) and gets the first check alone.
 //!
-//! Each check is also shown failing where it should: on a solve stopped
-//! after three iterations, and beside a light new obstacle. With the
-//! default tolerance mutated from 1e-9 to 1e-8, the first check failed (a
-//! converged solve left 5.3e-7); at 1e-7 both failed.
+//! Each check is also shown failing where it should: on a solve stopped after
+//! three iterations, and beside a light new obstacle. With the default
+//! tolerance at 1e-8 instead of 1e-9 the first check fails (a converged solve
+//! leaves 5.3e-7); at 1e-7 both do.
 
 use crate::common;
 
@@ -93,7 +93,7 @@ fn adjoint_gradient(p: &Seed, us: &[Vector2<f64>]) -> DVector<f64> {
 
 /// The Hessian of `J` at `us`: central differences of the adjoint
 /// gradient at relative step 1e-7, symmetrised. Truncation error grows
-/// with the step squared: on random problem 3 the smallest eigenvalue was
+/// with the step squared: on random problem 3 the smallest eigenvalue is
 /// −65 at 1e-5, −0.05 at 1e-6 and 0.0278 at 1e-7 and 1e-8, which a
 /// second difference of `J` itself along its eigenvector confirms.
 fn hessian(p: &Seed, us: &[Vector2<f64>]) -> DMatrix<f64> {
@@ -128,7 +128,7 @@ struct Local {
     lambda_min: f64,
     /// The curvature of `J` itself along that eigenvalue's eigenvector `v`:
     /// `(J(u + s·v) + J(u − s·v) − 2·J(u)) / s²` at `s = 1e-3`. Its
-    /// round-off, measured at about 8e-16·|J|/s², is below 4e-5 on these
+    /// round-off, about 8e-16·|J|/s², is below 4e-5 on these
     /// problems, against a smallest λ_min of 4.3e-3.
     softest_curvature: f64,
 }
@@ -147,7 +147,7 @@ fn examine(p: &Seed, us: &[Vector2<f64>]) -> Local {
     let in_basis = eigen.eigenvectors.tr_mul(&g);
     // The floor only guards a division by zero: above round-off it would
     // shorten the step along the softest directions, which are the ones
-    // that matter here (at 1e-12 · |λ|max it cut random problem 3's gain
+    // that matter here (at 1e-12 · |λ|max it cuts random problem 3's gain
     // from 6.9e-10 to 9.2e-11).
     let scaled = in_basis.zip_map(&eigen.eigenvalues, |c, l| -c / l.abs().max(1e-15 * largest));
     let predicted = -0.5 * in_basis.dot(&scaled) / j.abs();
@@ -176,7 +176,7 @@ fn examine(p: &Seed, us: &[Vector2<f64>]) -> Local {
 /// narrow valleys, so a Newton step on the exact Hessian can still find a
 /// little more: up to 1.65e-8 relative on these problems (random problems
 /// 18 and 20, converged after 151 and 157 iterations). With the tolerance
-/// at 1e-8 instead, converged solves left up to 5.3e-7.
+/// at 1e-8 instead, converged solves leave up to 5.3e-7.
 const STATIONARY: f64 = 1e-7;
 
 /// A problem like the seed with everything drawn: horizon 50, 100 or 150,
@@ -397,14 +397,13 @@ fn the_seed_has_a_cheaper_local_minimum_east_of_the_obstacle() {
     }
 }
 
-/// A slow descent is not cut short by one poor full step. On this problem
-/// (found by a review: a light, agile vehicle without gravity, a strong
-/// terminal weight), the steps before the last gained 2e-3 to 8e-3 each;
-/// the last predicted 7.7e-3 and gained 7.6e-6, under `tolerance·|J|`
-/// (2.2e-5), and the solve used to end `Converged` there, 4.3e-6 relative
-/// above IPOPT's 21681.40098, while the model at that point predicted a
-/// full step would gain 1300 times the tolerance. The model at the new
-/// iterate must now agree before the step's small gain counts.
+/// A slow descent is not cut short by one poor full step. On this problem (a
+/// light, agile vehicle without gravity, a strong terminal weight) the steps
+/// gain 2e-3 to 8e-3 each until one full step predicts 7.7e-3 and gains
+/// 7.6e-6, under `tolerance·|J|` (2.2e-5), at a cost still 4.3e-6 relative
+/// above IPOPT's 21681.40098; the model at the new iterate predicts that a
+/// full step would gain 1300 times the tolerance. That model must agree
+/// before the step's small gain counts.
 #[test]
 fn one_poor_full_step_does_not_end_a_slow_descent() {
     let goal = SVector::from([-1.9650065416112303, -3.4448468852091563, 0.0, 0.0, 0.0, 0.0]);

@@ -165,10 +165,10 @@ fn closed_and_open_miss(problem: &Seed, solver: &Solver<6, 2>) -> (f64, f64) {
 /// regularised gains, not the last pass's. With a zero tolerance the seed
 /// reaches its optimum, every line search then fails on round-off, and μ
 /// climbs past its maximum (twice: with the exact Hessian, then after the
-/// convex fallback), so the last pass ran at μ ≈ 4e18: `K` was 6e-11 at
-/// most, and from a perturbed start the "closed loop" missed the goal by
-/// the same 1.4 m as the open loop. The gains are the exact Hessian's at
-/// μ = 0 now.
+/// convex fallback), so the last pass runs at μ ≈ 4e18, where `K` is 6e-11 at
+/// most and its "closed loop" misses the goal from a perturbed start by the
+/// same 1.4 m as the open loop. The gains returned are the exact Hessian's at
+/// μ = 0.
 #[test]
 fn a_solve_ended_by_failed_line_searches_returns_useful_gains() {
     let problem = seed_problem(100, 0.05);
@@ -322,9 +322,10 @@ fn input_the_solver_cannot_use_is_an_error_not_a_panic() {
     );
 }
 
-/// `max_iterations` of any size is safe: the trace used to reserve that many
-/// rows up front, a capacity-overflow panic at `usize::MAX` and an abort on
-/// allocation at 2^40. The seed still converges in its 16 iterations.
+/// `max_iterations` of any size is safe: the trace reserves at most 10000
+/// rows up front, not that many (a capacity-overflow panic at `usize::MAX`,
+/// an abort on allocation at 2^40). The seed still converges in its 16
+/// iterations.
 #[test]
 fn an_unbounded_iteration_cap_is_safe() {
     for cap in [usize::MAX, 1 << 40] {
@@ -340,9 +341,8 @@ fn an_unbounded_iteration_cap_is_safe() {
 
 /// At an obstacle centre the cost is a cone tip: zero gradient, unbounded
 /// negative curvature. Nothing may turn NaN there, and the solver must
-/// escape: the curvature accumulated through `V_xx` needs μ ≈ 1.7e11, which
-/// an `mu_max` of 1e10 did not allow (the solve ended `NoProgress` at
-/// iteration 0 for offsets below 1 mm).
+/// escape: for offsets below 1 mm the curvature accumulated through `V_xx`
+/// needs μ ≈ 1.7e11, above iLQG.m's `mu_max` of 1e10.
 #[test]
 fn starts_on_and_near_the_obstacle_centre_stay_finite_and_escape() {
     for offset in [0.0, 1e-4, 0.05, 0.5] {
@@ -370,7 +370,6 @@ fn starts_on_and_near_the_obstacle_centre_stay_finite_and_escape() {
 /// Long horizons pile up the obstacle's negative curvature (it grows with
 /// the cube of the horizon through `V_xx`): the seed at `N = 1000` (same
 /// `dt`, so a 50 s flight) needs μ far above 1e10 on its first iterations.
-/// It used to stop with `NoProgress` after 4 iterations at cost 1.49e6.
 #[test]
 fn the_seed_over_a_long_horizon_converges() {
     let (solver, s) = solve_problem(&seed_problem(1000, 0.05), &Options::default());
@@ -383,7 +382,7 @@ fn the_seed_over_a_long_horizon_converges() {
 /// A flight of 400 s (N = 8000 at dt = 0.05) from a guess a hair above
 /// hover (4.9051 N per rotor, hover is 4.905): the obstacle's negative
 /// curvature piles up over the horizon until no μ up to `mu_max` makes
-/// `Q_uu` positive definite, and the solve used to end `NoProgress` at
+/// `Q_uu` positive definite: the exact Hessian alone ends `NoProgress` at
 /// iteration 0 with the guess. The convex fallback drops that curvature
 /// and goes on from the same iterate.
 #[test]
@@ -415,13 +414,11 @@ fn a_very_long_flight_falls_back_to_the_convex_expansion() {
 
 /// The seed at `dt = 10` with a 1e12 obstacle: the exact Hessian fails at
 /// once, and the convex model's minimum is not the cost's (its larger
-/// curvature under-predicts what a step gains). The solve used to stop
-/// there, `Converged` after 21 iterations at a cost 1.9e-6 above IPOPT's
-/// 21611203310.7 (a review's run, tolerance 1e-9); the exact Hessian, back
-/// to check that point, now goes on to within 1e-8 of it, and the result
-/// says the exact model gave the gains. The trace says which model each
-/// iteration used: the convex one from the first, then the exact one to
-/// the end.
+/// curvature under-predicts what a step gains): at tolerance 1e-9 it lies
+/// 1.9e-6 above IPOPT's 21611203310.7. The exact Hessian, back to check that
+/// point, goes on to within 1e-8 of it, and the result says the exact model
+/// gave the gains. The trace says which model each iteration used: the convex
+/// one from the first, then the exact one to the end.
 #[test]
 fn the_exact_hessian_checks_the_convex_models_minimum() {
     let mut problem = seed_problem(100, 10.0);
@@ -448,12 +445,12 @@ fn the_exact_hessian_checks_the_convex_models_minimum() {
 }
 
 /// Where the exact Hessian cannot complete a pass about the convex model's
-/// minimum at any μ, that point is not called converged: `Q_uu` indefinite
-/// up to μ = 1e20 where the gradient vanishes is a saddle's signature. A
-/// 1 mg, 1 mg·m² quadrotor flying steps of 10 s: the convex model stops
-/// after 3 iterations at 27303.55, which a review found IPOPT lowers to
-/// 1736.92 from that very point; the solve used to call it `Converged`. It
-/// ends `NoProgress`, with the convex model's gains, and says so.
+/// minimum at any μ, that point is not called converged: `Q_uu` indefinite up
+/// to μ = 1e20 where the gradient vanishes is a saddle's signature. A 1 mg,
+/// 1 mg·m² quadrotor flying steps of 10 s: the convex model stops after 3
+/// iterations at 27303.55, which IPOPT lowers to 1736.92 from that very
+/// point. The solve ends `NoProgress`, with the convex model's gains, and
+/// says so.
 #[test]
 fn a_convex_minimum_the_exact_hessian_cannot_check_is_not_converged() {
     let mut problem = seed_problem(300, 10.0);
@@ -475,7 +472,7 @@ fn a_convex_minimum_the_exact_hessian_cannot_check_is_not_converged() {
 /// first step counts as converged, then the exact pass about the new
 /// iterate fails at every μ up to 10: the convex model finds that iterate
 /// stationary at once, which it cannot tell from a maximum, so the solve
-/// ends `NoProgress` there, as it did before the fallback existed.
+/// ends `NoProgress` there, as it does without the fallback.
 #[test]
 fn a_convergence_claimed_before_the_fallback_is_not_carried_over() {
     let problem = seed_problem(100, 0.05);
@@ -498,10 +495,11 @@ fn a_convergence_claimed_before_the_fallback_is_not_carried_over() {
 }
 
 /// The budget is checked between the backward passes that raise μ, too: at
-/// `N = 2000` the first pass needs μ far above 1, a dozen passes that took
-/// 12 ms past a 10 ms budget at `N = 10000`. With no budget at all the
-/// solve stops after the first failed pass, and since no pass completed the
-/// gains are zero, not the half-written gains of the failed pass.
+/// `N = 2000` the first pass needs μ far above 1, and raising it takes a
+/// dozen passes (12 ms at `N = 10000`, more than a tight budget). With no
+/// budget at all the solve stops after the first failed pass, and since no
+/// pass completed the gains are zero, not the half-written gains of the
+/// failed pass.
 #[test]
 fn the_budget_is_checked_while_mu_is_raised_and_failed_passes_leave_no_gains() {
     let n = 2000;
@@ -566,9 +564,9 @@ fn a_cost_at_its_lower_bound_is_converged() {
     assert!(solver.controls().iter().all(|u| *u == hover(1)[0]));
 
     // A zero optimum reached up to round-off counts too. With only the
-    // terminal weights, the solve used to go on until the cost rested at
-    // 7.8e-34 (the states 1e-17 from the goal), where the relative test
-    // would need a gain round-off never gives, and end `NoProgress` at
+    // terminal weights the cost comes to rest at 7.8e-34 (the states 1e-17
+    // from the goal), where the relative test would need a gain round-off
+    // never gives: without the bound the solve ends `NoProgress` at
     // μ = 2e18.
     problem.cost = tracking(goal(), 0.0, 0.0, 1.0);
     let (solver, s) = solve_problem(&problem, &bounded);
@@ -580,7 +578,7 @@ fn a_cost_at_its_lower_bound_is_converged() {
 
     // The floor scales with the initial cost, so a wild guess must not
     // lift it to the optimum's level: from 1e7 N per rotor (initial cost
-    // 3.6e21) a floor of ε rather than ε² called 7.3e5 converged, with
+    // 3.6e21) a floor of ε rather than ε² would call 7.3e5 converged, with
     // the optimum near 5.4e3.
     let seed = seed_problem(100, 0.05);
     let (_, wild) = solve_from(&seed, &[Vector2::repeat(1e7); 100], &bounded);
@@ -599,10 +597,11 @@ fn a_cost_at_its_lower_bound_is_converged() {
 
 /// The seed without its obstacle at `dt = 10`: a full step reaches the goal
 /// to 1e-10 in two iterations, and what a next step could gain is below
-/// round-off. Tiny accepted partial steps used to leave μ above `mu_min`,
-/// where the model test was not trusted; every later line search failed on
-/// round-off until μ passed `mu_max`, and the solve ended `NoProgress` after
-/// 19 iterations at this same optimum. A pass at μ = 0 now confirms it.
+/// round-off. Tiny accepted partial steps leave μ above `mu_min`, where the
+/// model test alone is not trusted: without the pass at μ = 0 that confirms
+/// the optimum, every later line search would fail on round-off until μ
+/// passed `mu_max`, and the solve would end `NoProgress` at this same
+/// optimum.
 #[test]
 fn an_optimum_reached_to_round_off_is_converged_not_no_progress() {
     let mut problem = seed_problem(100, 10.0);
@@ -657,11 +656,11 @@ fn a_trajectory_held_on_an_obstacle_centre_is_not_called_converged() {
 /// A start on the centre of steep obstacles, with gravity and a goal away
 /// from them, is no such maximum: any step off the tip gains about q per
 /// metre. There the exact Hessian finds no μ that works, and the convex
-/// model, which sees the tip's gradient as 0, predicts only what the
-/// tracking terms gain (1e6 here, below 1e-9 of the cost of 1.1e15). That
-/// prediction used to end the solve `NoProgress` at iteration 0, at the
-/// initial guess; the convex model's step is now tried first, and gains
-/// almost all of the cost.
+/// model, which sees the tip's gradient as 0, predicts only what the tracking
+/// terms gain (1e6 here, below 1e-9 of the cost of 1.1e15). That prediction
+/// alone would end the solve `NoProgress` at iteration 0, at the initial
+/// guess; the convex model's step is tried first, and gains almost all of the
+/// cost.
 #[test]
 fn a_start_on_the_centre_of_steep_obstacles_leaves_it() {
     let centre = SVector::from([OBSTACLE[0], OBSTACLE[1], 0.0, 0.0, 0.0, 0.0]);
@@ -686,13 +685,13 @@ fn a_start_on_the_centre_of_steep_obstacles_leaves_it() {
     assert!((solver.states()[100] - centre).norm() > 1.0);
 }
 
-/// A start 0.1 mm from the centre of a steep obstacle (q = 1e6): `Q_uu` is
-/// so indefinite that the first pass raises μ to about 1e16, where a full
-/// step moves the thrusts by 1e-13 and gains almost nothing. That gain used
-/// to count as convergence: `Converged` after one iteration, the cost
-/// unchanged and the quadrotor 9 m from the goal. Such a step is no
-/// evidence of a minimum (`mu_converged_max`); the solve goes on and
-/// reaches the goal.
+/// A start 0.1 mm from the centre of a steep obstacle (q = 1e6): `Q_uu` is so
+/// indefinite that the first pass raises μ to about 1e16, where a full step
+/// moves the thrusts by 1e-13 and gains almost nothing. Counted as
+/// convergence, that gain would end the solve `Converged` after one
+/// iteration, the cost unchanged and the quadrotor 9 m from the goal. Such a
+/// step is no evidence of a minimum (`mu_converged_max`); the solve goes on
+/// and reaches the goal.
 #[test]
 fn a_step_damped_by_a_huge_mu_is_not_called_converged() {
     let mut problem = seed_problem(100, 0.05);
@@ -714,11 +713,10 @@ fn a_step_damped_by_a_huge_mu_is_not_called_converged() {
     );
 }
 
-/// Convergence is tested before the iteration cap: a solve that converges
-/// in exactly `max_iterations` iterations is `Converged`, and so is an
-/// optimal warm start given `max_iterations = 0`. They used to be
-/// `MaxIterations`, which tells an MPC caller with a tight cap that the
-/// solve ran out when it had not.
+/// Convergence is tested before the iteration cap: a solve that converges in
+/// exactly `max_iterations` iterations is `Converged`, and so is an optimal
+/// warm start given `max_iterations = 0`: `MaxIterations` would tell an MPC
+/// caller with a tight cap that the solve ran out when it had not.
 #[test]
 fn a_solve_that_converges_at_the_iteration_cap_is_converged() {
     let (free_solver, free) = solve_seed();
@@ -1024,12 +1022,12 @@ fn a_rollout_with_a_non_finite_state_is_rejected_even_at_finite_cost() {
     assert!(u > 2.0 && u <= 5.0, "{s:?}: u = {u}");
 }
 
-/// The pass at μ = 0 (taken when the damped model predicts a negligible
-/// gain) may propose a step the line search rejects. Then μ must go on up
-/// from where it was, not restart from μ_min: a review's problem (mass 1e6,
-/// g = 1e4, from zero thrust) alternated μ between 0 and 1e-6 on every
-/// rejected step, accepted nothing after iteration 89, and reported that
-/// the exact Hessian had failed "up to μ = 1e20" when it had tried 1e4.
+/// The pass at μ = 0 (taken when the damped model predicts a negligible gain)
+/// may propose a step the line search rejects. Then μ must go on up from
+/// where it was, not restart from μ_min. Restarting, this problem (mass 1e6,
+/// g = 1e4, from zero thrust) would alternate μ between 0 and 1e-6 on every
+/// rejected step, accept nothing after iteration 89, and report that the
+/// exact Hessian failed "up to μ = 1e20" when it had tried 1e4.
 #[test]
 fn a_failed_step_at_mu_zero_does_not_reset_the_regularisation() {
     let mut problem = seed_problem(100, 0.05);
@@ -1111,10 +1109,10 @@ fn second_order_converges_in_a_few_steps_where_ilqr_crawls() {
     );
 }
 
-/// On the seed itself DDP reaches another local optimum, 1.8% below the
-/// issue's reference 5520.212: IPOPT (`bench/casadi_ipopt.py`) started
-/// from DDP's controls stays at 5418.303870. It is a stationary point of
-/// iLQR's model too: started there, iLQR has nothing to do.
+/// On the seed itself DDP reaches another local optimum, 1.8% below iLQR's
+/// 5520.212: IPOPT (`bench/casadi_ipopt.py`) started from DDP's controls
+/// stays at 5418.303870. It is a stationary point of iLQR's model too:
+/// started there, iLQR has nothing to do.
 #[test]
 fn second_order_finds_the_seeds_lower_local_optimum() {
     const LOWER_OPTIMUM: f64 = 5418.303870;
@@ -1140,7 +1138,7 @@ fn second_order_finds_the_seeds_lower_local_optimum() {
 /// DDP's model of a step is second-order exact where iLQR's is not: near
 /// the R = 90·I optimum (iLQR's 40th iterate), a DDP step gains what its
 /// model predicts, while iLQR's gains a small fraction of its prediction
-/// (the crawl). Measured: DDP 1.0001 of its prediction, iLQR 0.0036.
+/// (the crawl): DDP's step gains 1.0001 of its prediction, iLQR's 0.0036.
 /// Without DDP's `l_ux` term the ratio is 0.9968; without `l_xx` the full
 /// step is not even accepted.
 #[test]

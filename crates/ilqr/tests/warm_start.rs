@@ -109,10 +109,10 @@ fn the_fixtures_parse_to_a_hundred_pairs() {
     }
 }
 
-/// The check: an RK4 solve warm-started with IPOPT's RK4 optimum
-/// stays at its cost to 1e-7 and converges in a few iterations. It takes
-/// none: the first backward pass about IPOPT's trajectory already
-/// predicts no gain worth a step.
+/// An RK4 solve warm-started with IPOPT's RK4 optimum stays at its cost to
+/// 1e-7 and converges in a few iterations. It takes none: the first
+/// backward pass about IPOPT's trajectory already predicts no gain worth a
+/// step.
 #[test]
 fn rk4_from_ipopts_rk4_optimum_stays_there() {
     let problem = seed_rk4();

@@ -98,9 +98,9 @@ pub struct Summary {
     /// without [`Options::convex_fallback`]) after an accepted step, before
     /// the backward pass about the new iterate completed (during its
     /// linearisation, the pass itself, or while raising μ). `K` is then the
-    /// policy of a trajectory one step away (at the last knot 0–12% off
-    /// with one to six obstacles, 2–60% with 100, in the cases measured)
-    /// and `d` can be far from the next step (7.8% to over 1000% off).
+    /// policy of a trajectory one step away, further off the more
+    /// obstacles there are, and `d` can be off the next step by more than
+    /// its own size (docs/limits.md, "Gains about the previous iterate").
     /// False whenever the gains were computed about the returned
     /// trajectory, which every other exit guarantees.
     pub gains_about_previous_iterate: bool,
