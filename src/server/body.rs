@@ -3,9 +3,9 @@
 //!
 //! A body is held whole until it is parsed (the parser needs all of it to
 //! point at every bad value), and the number of connections is not limited.
-//! Without a shared cap, memory grew with the number of clients uploading at
-//! once: 100 connections each holding a 4 MB body held 395 MiB of RSS, so a
-//! few hundred would exhaust a container. [`BodyBudget`] counts the bytes of
+//! Without a shared cap, memory grows with the number of clients uploading
+//! at once (a hundred 4 MB bodies are 400 MB), so a few hundred would
+//! exhaust a container. [`BodyBudget`] counts the bytes of
 //! every body being read or parsed, and a body that would take the total
 //! past the cap is answered 503 `overloaded` with `Retry-After`, as a full
 //! solver queue is: the same back-pressure, for the same kind of client.

@@ -257,8 +257,8 @@ pub struct Config {
     pub max_body_bytes: usize,
     /// Bytes that the request bodies being received may hold together, over
     /// all connections: each is held whole until it is parsed, and
-    /// connections are not limited (100 clients each sending a 4 MB body
-    /// held 395 MiB). A body that would take the total past this waits for
+    /// connections are not limited, so without it memory grows with the
+    /// number of clients uploading at once. A body that would take the total past this waits for
     /// nothing: it gets 503 `overloaded` with `Retry-After`, as a full queue
     /// does. The answers being sent have a budget of this size too (an
     /// answer over it while others hold it is a 503). At least
@@ -783,8 +783,8 @@ fn log_panics() {
 
 fn init_logging(format: LogFormat) {
     use tracing_subscriber::EnvFilter;
-    // Unset or empty: `info`. Set but unreadable: `info` too, said once
-    // logging works (it used to fall back silently).
+    // Unset or empty: `info`. Set but unreadable: `info` too, and a warning
+    // says so once logging works, so a typo is not taken silently.
     let (filter, rejected) = match std::env::var(EnvFilter::DEFAULT_ENV) {
         Ok(v) if !v.trim().is_empty() => match EnvFilter::try_new(&v) {
             Ok(filter) => (filter, None),

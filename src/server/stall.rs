@@ -4,8 +4,8 @@
 //! hyper has no write timeout: a client that sends a request and then
 //! never reads (or reads a few bytes a minute) keeps its connection, and
 //! the answer hyper is writing, for as long as the TCP connection lives. A
-//! long horizon's answer is megabytes, so a review's 100 such clients held
-//! 433 MB until they closed. [`WriteStall`] wraps the socket: once a write
+//! long horizon's answer is megabytes, so a hundred such clients hold
+//! hundreds of MB until they close. [`WriteStall`] wraps the socket: once a write
 //! has made no progress (the kernel's send buffer full) for the limit, the
 //! write fails with `TimedOut`, hyper drops the connection, and the answer
 //! is freed. A slow reader that takes a byte now and then is not stalled:

@@ -201,9 +201,12 @@ class MethodNotAllowedError(ApiError):
 
 
 class OverloadedError(ApiError):
-    """503 ``overloaded``: every worker is busy and the queue is full, or
-    the service is receiving as many request bodies as its memory budget
-    for them allows (``detail`` says which).
+    """503 ``overloaded``: every worker is busy and the queue is full, the
+    solves queued ahead would take longer than the request's time budget
+    allows it to wait, or the service is receiving as many request bodies
+    as its memory budget for them allows (``detail`` says which); and 503
+    ``expired-in-queue``: admitted, but its budget ran out while it waited
+    for a worker, so nothing was solved.
 
     Transient. :attr:`retry_after` holds the seconds the service asked to
     wait (from the ``Retry-After`` header, else the body's ``retry_after``).
@@ -238,6 +241,7 @@ _BY_SLUG: Dict[str, Type[ApiError]] = {
     "not-found": NotFoundError,
     "method-not-allowed": MethodNotAllowedError,
     "overloaded": OverloadedError,
+    "expired-in-queue": OverloadedError,
     "shutting-down": ShuttingDownError,
     "internal": ServerError,
 }

@@ -782,8 +782,8 @@ class Gains:
             backward pass about the new iterate completed (often, when a
             tight budget stops a long horizon):
             the gains are then the previous iterate's, one step away: a
-            fallback (``K`` 0–60% off in the cases measured,
-            ``feedforward`` not the next step). ``None`` from a
+            fallback (``K`` further off the more obstacles there are,
+            ``feedforward`` not the next step; see docs/limits.md). ``None`` from a
             service too old to report it.
     """
 
