@@ -55,11 +55,12 @@ fn values(xs: &[f64]) -> String {
     format!("[{}]", list.join(", "))
 }
 
-/// Per model: `` `name`: <what> ``, joined by `; `.
+/// Per model: `name: <what>`, joined by `; `. Plain text: Swagger UI
+/// renders descriptions as Markdown.
 fn per_model(what: impl Fn(&dyn ServedModel) -> String) -> String {
     MODELS
         .iter()
-        .map(|m| format!("`{}`: {}", m.name(), what(*m)))
+        .map(|m| format!("{}: {}", m.name(), what(*m)))
         .collect::<Vec<_>>()
         .join("; ")
 }
@@ -271,10 +272,10 @@ pub fn model() -> Schema {
     one_of
         .item(ObjectBuilder::new().schema_type(Type::Null))
         .description(Some(format!(
-            "The dynamics model and its parameters: `type` is one of {} (GET /models describes \
+            "The dynamics model and its parameters: type is one of {} (GET /models describes \
              each), and every other member is one of that model's parameters. Left out or \
-             null: `{DEFAULT_MODEL}` with its default parameters.",
-            crate::models::names()
+             null: {DEFAULT_MODEL} with its default parameters.",
+            crate::models::names().replace('`', "")
         )))
         .build()
         .into()
@@ -287,9 +288,9 @@ pub fn integrator() -> Schema {
         .enum_values(Some(["euler", "rk4"]))
         .default(Some("euler".into()))
         .description(Some(
-            "How the continuous dynamics are discretised, for every model: `euler` (default), \
+            "How the continuous dynamics are discretised, for every model: euler (default), \
              explicit Euler x_{k+1} = x_k + dt·f(x_k, u_k), the paper's eq. 9, first-order \
-             accurate; or `rk4`, the classical fourth-order Runge–Kutta step with the controls \
+             accurate; or rk4, the classical fourth-order Runge–Kutta step with the controls \
              held over the step, four evaluations of the model per step, with exact \
              Jacobians.",
         ))
@@ -340,8 +341,8 @@ pub fn initial_controls() -> Schema {
              model, each of magnitude at most 1e12 in its unit ({}). Exactly horizon rows: \
              checked by the service (a 422 at /initial_controls), since a schema cannot tie an \
              array's length to another member. Absent or null: the model's rest controls at \
-             every step (hover thrust m·g/2 on both rotors for `quadrotor_2d`, standing still \
-             for `unicycle`), or warm_start's controls.",
+             every step (hover thrust m·g/2 on both rotors for quadrotor_2d, standing still \
+             for unicycle), or warm_start's controls.",
             per_model(|m| components(m.control()))
         )))
         .build()
@@ -371,8 +372,8 @@ pub fn warm_start() -> Schema {
         .item(ObjectBuilder::new().schema_type(Type::Null))
         .description(Some(
             "A previous result to start from: POST /solve's answer, whole or in part. Its \
-             `controls` become the initial guess, and set the horizon when the problem gives \
-             none; its other members are ignored, but `model`, if given, must be the \
+             controls become the initial guess, and set the horizon when the problem gives \
+             none; its other members are ignored, but model, if given, must be the \
              problem's. Not with initial_controls. Null: none.",
         ))
         .build()

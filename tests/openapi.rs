@@ -91,7 +91,7 @@ fn the_spec_documents_every_status_and_bounds_the_arrays() {
             .unwrap_or("");
         let names: Vec<&str> = m.state().iter().map(|q| q.name).collect();
         assert!(
-            described.contains(&format!("`{}`: [{}]", m.name(), names.join(", "))),
+            described.contains(&format!("{}: [{}]", m.name(), names.join(", "))),
             "{described}"
         );
     }
@@ -257,7 +257,7 @@ fn the_spec_states_the_defaults_the_code_applies() {
             assert!(schema.get("default").is_none(), "{member}");
             let described = schema["description"].as_str().unwrap_or("");
             let at = described
-                .find(&format!("`{}`: ", m.name()))
+                .find(&format!("{}: ", m.name()))
                 .unwrap_or_else(|| panic!("{member}: no `{}` in {described}", m.name()));
             let own = described[at..].split(';').next().unwrap_or("");
             assert!(
