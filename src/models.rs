@@ -15,7 +15,7 @@ use std::time::Duration;
 use ilqr::{Model, Parameter, Quadrotor2D, Quantity, Unicycle};
 
 use crate::problem::{Obstacle, ProblemSpec};
-use crate::solve::{SolveResult, Unsolvable};
+use crate::solve::{SolveResult, TraceEntry, Unsolvable};
 
 /// Every model, the default (`{}`'s, [`DEFAULT_MODEL`]) first.
 pub static MODELS: [&dyn ServedModel; 2] = [
@@ -118,12 +118,14 @@ pub trait ServedModel: Send + Sync {
     /// (one per [`ServedModel::parameters`] entry): the default initial
     /// guess.
     fn rest_controls(&self, parameters: &[f64]) -> Vec<f64>;
-    /// Solve a validated problem of this model (see [`crate::solve::solve`]).
+    /// Solve a validated problem of this model, reporting each iteration
+    /// to `progress` (see [`crate::solve::solve_observed`]).
     fn solve(
         &self,
         spec: &ProblemSpec,
         time_limit: Option<Duration>,
         cancel: &AtomicBool,
+        progress: &mut dyn FnMut(&TraceEntry),
     ) -> Result<SolveResult, Unsolvable>;
 }
 
@@ -189,8 +191,9 @@ where
         spec: &ProblemSpec,
         time_limit: Option<Duration>,
         cancel: &AtomicBool,
+        progress: &mut dyn FnMut(&TraceEntry),
     ) -> Result<SolveResult, Unsolvable> {
-        crate::solve::solve_model::<M, NX, NU>(spec, time_limit, cancel)
+        crate::solve::solve_model::<M, NX, NU>(spec, time_limit, cancel, progress)
     }
 }
 

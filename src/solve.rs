@@ -247,8 +247,21 @@ pub fn solve(
     time_limit: Option<Duration>,
     cancel: &AtomicBool,
 ) -> Result<SolveResult, Unsolvable> {
+    solve_observed(spec, time_limit, cancel, &mut |_| {})
+}
+
+/// [`solve`], calling `progress` with each iteration's trace row as soon
+/// as the iteration ends, on the solving thread (a stream of progress to a
+/// caller). The rows are those of the result's `trace`, whatever
+/// `output.trace` says.
+pub fn solve_observed(
+    spec: &ProblemSpec,
+    time_limit: Option<Duration>,
+    cancel: &AtomicBool,
+    progress: &mut dyn FnMut(&TraceEntry),
+) -> Result<SolveResult, Unsolvable> {
     match spec.model.served() {
-        Some(model) => model.solve(spec, time_limit, cancel),
+        Some(model) => model.solve(spec, time_limit, cancel, progress),
         None => Err(Unsolvable(FieldError {
             pointer: "/model/type".into(),
             detail: format!("unknown model: expected one of {}", crate::models::names()),
@@ -262,6 +275,7 @@ pub(crate) fn solve_model<M, const NX: usize, const NU: usize>(
     spec: &ProblemSpec,
     time_limit: Option<Duration>,
     cancel: &AtomicBool,
+    progress: &mut dyn FnMut(&TraceEntry),
 ) -> Result<SolveResult, Unsolvable>
 where
     M: Model<NX, NU> + 'static,
@@ -285,6 +299,7 @@ where
     let cost = objective::<NX, NU>(spec, M::POSITION)?;
     let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
     let (dt, horizon) = (spec.dt, spec.horizon);
+    let run = (&options, cancel, progress);
     with_solver(horizon, |solver| match spec.integrator {
         Integrator::Euler => {
             let problem = Problem {
@@ -293,7 +308,7 @@ where
                 x0,
                 horizon,
             };
-            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, &options, cancel)
+            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, run)
         }
         Integrator::Rk4 => {
             let problem = Problem {
@@ -302,7 +317,7 @@ where
                 x0,
                 horizon,
             };
-            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, &options, cancel)
+            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, run)
         }
     })
 }
@@ -389,14 +404,21 @@ fn wire_gains<const NX: usize, const NU: usize>(
     }
 }
 
+/// How to run a solve: its options, its cancellation flag, and where each
+/// iteration's row goes.
+type Run<'a, 'p> = (
+    &'a Options,
+    &'a AtomicBool,
+    &'a mut (dyn FnMut(&TraceEntry) + 'p),
+);
+
 /// Run `solver` on the built problem and convert what it found.
 fn solve_on<M, D, C, const NX: usize, const NU: usize>(
     solver: &mut Solver<NX, NU>,
     spec: &ProblemSpec,
     problem: &Problem<D, C, NX>,
     u_init: &[SVector<f64, NU>],
-    options: &Options,
-    cancel: &AtomicBool,
+    (options, cancel, progress): Run<'_, '_>,
 ) -> Result<SolveResult, Unsolvable>
 where
     M: Model<NX, NU>,
@@ -404,7 +426,9 @@ where
     C: Cost<NX, NU>,
 {
     let summary = solver
-        .solve(problem, u_init, options, cancel)
+        .solve_observed(problem, u_init, options, cancel, &mut |row| {
+            progress(&trace_entry(row));
+        })
         .map_err(|e| Unsolvable(field_error(e, spec)))?;
 
     let states = Rows::from_rows(NX, solver.states().iter());
@@ -420,23 +444,10 @@ where
     // Zero gains from a solve whose first backward pass never completed
     // would read as a valid (open-loop) policy; leave them out instead.
     let gains = (spec.output.gains && summary.has_gains).then(|| wire_gains(solver, &summary));
-    let trace = spec.output.trace.then(|| {
-        solver
-            .trace()
-            .iter()
-            .map(|r| TraceEntry {
-                iteration: r.iteration,
-                cost: r.cost,
-                expected_reduction: r.expected_reduction,
-                actual_reduction: r.actual_reduction,
-                step_size: r.step_size,
-                regularization: r.regularization,
-                feedforward_norm: r.feedforward_norm,
-                convex_model: r.convex_model,
-                elapsed_ms: millis(r.elapsed),
-            })
-            .collect()
-    });
+    let trace = spec
+        .output
+        .trace
+        .then(|| solver.trace().iter().map(trace_entry).collect());
     Ok(SolveResult {
         model: M::NAME.to_owned(),
         integrator: spec.integrator,
@@ -455,6 +466,21 @@ where
         solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })
+}
+
+/// A trace row in the wire's form.
+fn trace_entry(r: &ilqr::TraceRow) -> TraceEntry {
+    TraceEntry {
+        iteration: r.iteration,
+        cost: r.cost,
+        expected_reduction: r.expected_reduction,
+        actual_reduction: r.actual_reduction,
+        step_size: r.step_size,
+        regularization: r.regularization,
+        feedforward_norm: r.feedforward_norm,
+        convex_model: r.convex_model,
+        elapsed_ms: millis(r.elapsed),
+    }
 }
 
 /// Rows of numbers of one width (states, controls, a gain matrix), stored

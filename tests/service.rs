@@ -14,4 +14,5 @@ mod cli;
 mod http;
 mod models;
 mod solve;
+mod stream;
 mod validation;

@@ -13,6 +13,7 @@ use tower_http::catch_panic::CatchPanicLayer;
 use tower_http::compression::{CompressionLayer, CompressionLevel};
 use tower_http::request_id::{MakeRequestUuid, PropagateRequestIdLayer, SetRequestIdLayer};
 use tower_http::trace::{OnResponse, TraceLayer};
+use tracing::Instrument;
 use utoipa::{OpenApi, ToSchema};
 use utoipa_axum::router::OpenApiRouter;
 use utoipa_axum::routes;
@@ -56,6 +57,7 @@ pub struct ApiDoc;
 fn api_router() -> OpenApiRouter<Arc<AppState>> {
     OpenApiRouter::with_openapi(ApiDoc::openapi())
         .routes(routes!(solve))
+        .routes(routes!(solve_stream))
         .routes(routes!(default_problem))
         .routes(routes!(list_models))
         .routes(routes!(healthz))
@@ -733,6 +735,120 @@ async fn solve(
         res.headers_mut().insert("server-timing", timing);
     }
     Ok(res)
+}
+
+/// Solve, streaming progress as Server-Sent Events.
+///
+/// The same problem, validation and solve as `POST /solve`, answered as
+/// `text/event-stream`: one `iteration` event per iteration as it ends
+/// (its data a trace row, as in the result's `trace`), then one `result`
+/// event (its data the whole result, as `/solve` answers it), or one
+/// `error` event (its data a problem document) if the solve could not be
+/// answered after the stream began (its budget ran out while queued, the
+/// service shut down, a bug). What is refused before the stream begins
+/// (invalid input, overload, a draining service) is answered as by
+/// `/solve`: a problem document with its status. A client that closes
+/// the stream cancels the solve. Works with `curl -N` and with
+/// `EventSource`-style readers that can POST.
+#[utoipa::path(
+    post,
+    path = "/solve/stream",
+    tag = "solve",
+    request_body(content = ProblemDoc, content_type = "application/json"),
+    responses(
+        (status = 200, description = "A stream of `iteration` events (data: a TraceEntry), then one `result` event (data: a SolveResult) or one `error` event (data: a Problem)", content_type = "text/event-stream", body = String),
+        (status = 400, description = "The body is not JSON, or could not be read", body = Problem, content_type = "application/problem+json"),
+        (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
+        (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
+        (status = 415, description = "Content-Type is not JSON, or the body is compressed", body = Problem, content_type = "application/problem+json"),
+        (status = 422, description = "Invalid problem; `errors` has a JSON pointer per field", body = Problem, content_type = "application/problem+json"),
+        (status = 500, description = "A bug (never caused by input)", body = Problem, content_type = "application/problem+json"),
+        (status = 503, description = "Overloaded (with Retry-After) or shutting down, as for /solve", body = Problem, content_type = "application/problem+json",
+            headers(("Retry-After" = u64, description = "Seconds to wait before retrying, with `overloaded`"))),
+    )
+)]
+async fn solve_stream(
+    State(st): State<Arc<AppState>>,
+    ProblemJson(spec): ProblemJson,
+) -> Result<Response, ApiError> {
+    use axum::response::sse::{KeepAlive, Sse};
+    let (events, stream) = tokio::sync::mpsc::unbounded_channel::<StreamEvent>();
+    let rows = events.clone();
+    let answers = Arc::clone(&st.answers);
+    let request = SolveRequest::new(spec, Transport::Http)
+        .refuse_if("answer_budget", move || answers.is_full())
+        .progress(move |row| {
+            // A closed stream (the client left) drops the row; the
+            // solve is being cancelled.
+            let _ = rows.send(StreamEvent::Iteration(row.clone()));
+        });
+    let pending = st
+        .service
+        .submit(request, |r| Ok(r.to_json()?))
+        .map_err(ApiError::from)?;
+    // The pending solve lives in a task of its own, until its answer is
+    // sent or the client closes the stream (its receiver dropped): then
+    // `pending` is dropped, which cancels the solve.
+    tokio::spawn(
+        async move {
+            tokio::select! {
+                done = pending.finish() => {
+                    let last = match done {
+                        Ok(solved) => StreamEvent::Result(solved.answer),
+                        Err(e) => StreamEvent::Error(ApiError::from(e).problem()),
+                    };
+                    let _ = events.send(last);
+                }
+                () = events.closed() => {}
+            }
+        }
+        .instrument(tracing::Span::current()),
+    );
+    Ok(Sse::new(EventStream(stream))
+        .keep_alive(KeepAlive::default())
+        .into_response())
+}
+
+/// What `/solve/stream` sends.
+enum StreamEvent {
+    Iteration(crate::solve::TraceEntry),
+    /// The result, as JSON.
+    Result(Vec<u8>),
+    Error(Problem),
+}
+
+/// The events of one `/solve/stream`, as axum's SSE stream.
+struct EventStream(tokio::sync::mpsc::UnboundedReceiver<StreamEvent>);
+
+impl futures_core::Stream for EventStream {
+    type Item = Result<axum::response::sse::Event, std::convert::Infallible>;
+
+    fn poll_next(
+        mut self: std::pin::Pin<&mut Self>,
+        cx: &mut std::task::Context<'_>,
+    ) -> std::task::Poll<Option<Self::Item>> {
+        use axum::response::sse::Event;
+        self.0.poll_recv(cx).map(|next| {
+            next.map(|event| {
+                // Serialising plain data types does not fail; if it ever
+                // did, the event says so rather than the stream ending.
+                let json = |value: serde_json::Result<String>| {
+                    value.unwrap_or_else(|e| format!("{{\"error\": \"{e}\"}}"))
+                };
+                Ok(match event {
+                    StreamEvent::Iteration(row) => Event::default()
+                        .event("iteration")
+                        .data(json(serde_json::to_string(&row))),
+                    StreamEvent::Result(bytes) => Event::default()
+                        .event("result")
+                        .data(String::from_utf8_lossy(&bytes)),
+                    StreamEvent::Error(problem) => Event::default()
+                        .event("error")
+                        .data(json(serde_json::to_string(&problem))),
+                })
+            })
+        })
+    }
 }
 
 /// Whether a request's `Accept-Encoding` admits gzip (RFC 9110 §12.5.3):

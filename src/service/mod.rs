@@ -86,7 +86,7 @@ use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 
 use crate::problem::{Invalid, Limits, ProblemSpec};
-use crate::solve::{SolveResult, SolveStatus, Unsolvable, millis, solve as run_solve};
+use crate::solve::{SolveResult, SolveStatus, TraceEntry, Unsolvable, millis, solve_observed};
 use pool::{Estimate, Pool, Refusal, Ticket, Timing};
 
 /// Weight of the newest sample in the service's moving averages.
@@ -129,13 +129,28 @@ pub struct Settings {
     pub retry_after_secs: u64,
 }
 
+/// What a worker is given to run a solve.
+struct Job<'a> {
+    spec: &'a ProblemSpec,
+    waited: Duration,
+    timing: Timing,
+    cancel: &'a AtomicBool,
+    transport: Transport,
+}
+
 /// A problem to solve and how it came.
 pub struct SolveRequest {
     spec: ProblemSpec,
     transport: Transport,
     deadline: Option<Instant>,
     busy: Option<(&'static str, BusyCheck)>,
+    progress: Option<Progress>,
 }
+
+/// Where a solve reports each iteration's trace row as it ends
+/// ([`SolveRequest::progress`]). Called on the worker, inside the solver's
+/// loop: it should hand the row on (to a channel) and return.
+pub type Progress = Box<dyn FnMut(&TraceEntry) + Send>;
 
 /// A transport's own check before admission ([`SolveRequest::refuse_if`]).
 type BusyCheck = Box<dyn FnOnce() -> bool + Send>;
@@ -149,7 +164,15 @@ impl SolveRequest {
             transport,
             deadline: None,
             busy: None,
+            progress: None,
         }
+    }
+
+    /// Report each iteration's trace row to `progress` as the solve runs
+    /// (a progress stream: Server-Sent Events, gRPC's `SolveStream`).
+    pub fn progress(mut self, progress: impl FnMut(&TraceEntry) + Send + 'static) -> Self {
+        self.progress = Some(Box::new(progress));
+        self
     }
 
     /// The caller's own deadline (gRPC's `grpc-timeout`): the solve's
@@ -362,6 +385,7 @@ impl SolveService {
             transport,
             deadline: theirs,
             busy,
+            progress,
         } = req;
         let refuse = |e| Err(rejected(transport, e));
         if self.is_draining() {
@@ -405,7 +429,14 @@ impl SolveService {
             .pool
             .submit(timing, estimate, move |waited| {
                 let _entered = job_span.enter();
-                service.run(&spec, waited, timing, &cancel, transport, encode)
+                let job = Job {
+                    spec: &spec,
+                    waited,
+                    timing,
+                    cancel: &cancel,
+                    transport,
+                };
+                service.run(job, progress, encode)
             })
             .map_err(|refusal| {
                 let cause = match refusal {
@@ -464,13 +495,17 @@ impl SolveService {
     /// On a worker: solve, count, log and encode.
     fn run<T>(
         &self,
-        spec: &ProblemSpec,
-        waited: Duration,
-        timing: Timing,
-        cancel: &AtomicBool,
-        transport: Transport,
+        job: Job<'_>,
+        mut progress: Option<Progress>,
         encode: impl FnOnce(&SolveResult) -> Result<T, EncodeError>,
     ) -> Outcome<T> {
+        let Job {
+            spec,
+            waited,
+            timing,
+            cancel,
+            transport,
+        } = job;
         // Cancelled by a shutdown before a worker took it. Nothing was
         // computed, so the answer says to retry elsewhere rather than
         // holding the initial guess. (A caller that leaves withdraws its
@@ -486,7 +521,12 @@ impl SolveService {
         let remaining = timing
             .deadline
             .map(|d| d.saturating_duration_since(started));
-        let mut r = match run_solve(spec, remaining, cancel) {
+        let mut report = |row: &TraceEntry| {
+            if let Some(progress) = &mut progress {
+                progress(row);
+            }
+        };
+        let mut r = match solve_observed(spec, remaining, cancel, &mut report) {
             Ok(r) => r,
             Err(e) => return Outcome::Unsolvable(e),
         };

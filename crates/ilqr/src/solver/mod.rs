@@ -279,6 +279,26 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         D: DiscreteDynamics<NX, NU>,
         C: Cost<NX, NU>,
     {
+        self.solve_observed(problem, u_init, options, cancel, &mut |_| {})
+    }
+
+    /// [`Solver::solve`], calling `observe` with each iteration's
+    /// [`TraceRow`] as soon as the iteration ends (the rows [`Solver::trace`]
+    /// holds afterwards, in order): a caller can report progress while the
+    /// solve runs. `observe` runs on the solver's thread, inside the loop,
+    /// so it should be quick; it cannot stop the solve (`cancel` does).
+    pub fn solve_observed<D, C>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        u_init: &[SVector<f64, NU>],
+        options: &Options,
+        cancel: &AtomicBool,
+        observe: &mut impl FnMut(&TraceRow),
+    ) -> Result<Summary, SolveError>
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
         let start = Instant::now();
         let n = problem.horizon;
         if n == 0 {
@@ -330,7 +350,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         };
         let mut state = LoopState::new(options, cost);
         let (dynamics, cost) = (&problem.dynamics, &problem.cost);
-        let status = self.iterate(dynamics, cost, options, &mut state, start, &interrupted);
+        let status = self.iterate(
+            dynamics,
+            cost,
+            options,
+            &mut state,
+            (start, &interrupted),
+            observe,
+        );
         self.least_regularized_gains(dynamics, cost, options, status, &mut state, &interrupted);
         Ok(state.summary(status, start.elapsed()))
     }
@@ -345,8 +372,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         cost: &C,
         options: &Options,
         state: &mut LoopState,
-        start: Instant,
-        interrupted: &impl Fn() -> Option<Status>,
+        (start, interrupted): (Instant, &impl Fn() -> Option<Status>),
+        observe: &mut impl FnMut(&TraceRow),
     ) -> Status
     where
         D: DiscreteDynamics<NX, NU>,
@@ -407,11 +434,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     // this iteration's backward pass still describe it.
                     row.elapsed = start.elapsed();
                     self.trace.push(row);
+                    observe(&row);
                     return status;
                 }
             }
             row.elapsed = start.elapsed();
             self.trace.push(row);
+            observe(&row);
             // Where the model in use can do no more, the next one takes
             // over from step 1, or the solve ends `NoProgress`.
             if state.exhausted(options)
