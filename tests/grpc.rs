@@ -754,8 +754,8 @@ async fn a_drain_turns_health_not_serving_and_finishes_calls_in_flight() {
 }
 
 /// Server reflection (v1 and v1alpha) lists the optimizer, health and
-/// reflection services, and serves the optimizer's file, so that grpcurl
-/// and grpcui need no proto file.
+/// reflection services, and serves the optimizer's file and that of the
+/// error details, so that grpcurl and grpcui need no proto file.
 #[tokio::test]
 async fn reflection_lists_and_describes_the_services() {
     use tonic::codegen::tokio_stream;
@@ -774,6 +774,10 @@ async fn reflection_lists_and_describes_the_services() {
             ask(MessageRequest::ListServices(String::new())),
             ask(MessageRequest::FileContainingSymbol(
                 "ilqr.v1.TrajectoryOptimizer".into(),
+            )),
+            // The error details' types, for a client to decode them.
+            ask(MessageRequest::FileContainingSymbol(
+                "google.rpc.BadRequest".into(),
             )),
         ]))
         .await
@@ -802,6 +806,14 @@ async fn reflection_lists_and_describes_the_services() {
         .unwrap();
     assert_eq!(file.name(), "ilqr/v1/ilqr.proto");
     assert_eq!(file.service[0].method.len(), 4);
+    let Some(MessageResponse::FileDescriptorResponse(files)) =
+        answers.message().await.unwrap().unwrap().message_response
+    else {
+        panic!("no file for google.rpc.BadRequest")
+    };
+    let file = prost_types::FileDescriptorProto::decode(files.file_descriptor_proto[0].as_slice())
+        .unwrap();
+    assert_eq!(file.package(), "google.rpc");
 
     use tonic_reflection::pb::v1alpha;
     let mut old = v1alpha::server_reflection_client::ServerReflectionClient::new(channel);

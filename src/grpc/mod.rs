@@ -33,8 +33,9 @@
 //!   (`""`) and `ilqr.v1.TrajectoryOptimizer`, and `NOT_SERVING` for both
 //!   from the moment a drain begins ([`Health::draining`]), as `/readyz`.
 //! * **Reflection.** `grpc.reflection.v1` and `v1alpha` list and describe
-//!   the services, with the contract's comments, so `grpcurl` and `grpcui`
-//!   need no proto file.
+//!   the services, with the contract's comments, and the types of
+//!   `google.rpc`'s error details, so `grpcurl` and `grpcui` need no proto
+//!   file to call the service or to print its errors.
 //! * **Request ids.** Every call has an `x-request-id` (the caller's own
 //!   if usable, as over HTTP, else a new UUID), echoed in the response
 //!   metadata, in its log lines and in `google.rpc.RequestInfo` of an
@@ -158,6 +159,9 @@ impl Server {
             tonic_reflection::server::Builder::configure()
                 .register_encoded_file_descriptor_set(FILE_DESCRIPTOR_SET)
                 .register_encoded_file_descriptor_set(tonic_health::pb::FILE_DESCRIPTOR_SET)
+                // google.rpc's error details, so that a reflection client
+                // can decode them (grpcurl prints them as JSON).
+                .register_encoded_file_descriptor_set(tonic_types::pb::FILE_DESCRIPTOR_SET)
         };
         let layers = tower::ServiceBuilder::new()
             .map_request(crate::server::drop_unusable_request_id)
@@ -433,18 +437,25 @@ impl Call {
         .increment(1);
         metrics::histogram!("grpc_request_duration_seconds", "method" => self.method)
             .record(self.started.elapsed().as_secs_f64());
-        let Some(e) = error else { return };
         let _in_call = self.span.enter();
-        let (code, message) = (code_name(code), crate::problem::clip(e.message(), 300));
         let latency_ms = crate::solve::millis(self.started.elapsed());
-        match e.code() {
+        let name = code_name(code);
+        let Some(e) = error else {
+            tracing::debug!(code = name, latency_ms, "response");
+            return;
+        };
+        // The status message, as the HTTP access log's `detail`: it says
+        // what was wrong and may quote a short value, never the request.
+        let clipped = crate::problem::clip(e.message(), 300);
+        let detail: &str = &clipped;
+        match code {
             // Back-pressure working: a line each would flood the log when
             // the service is busiest (counted in solve_rejections_total).
-            Code::ResourceExhausted => tracing::debug!(code, %message, latency_ms, "response"),
+            Code::ResourceExhausted => tracing::debug!(code = name, detail, latency_ms, "response"),
             Code::Internal | Code::Unknown => {
-                tracing::warn!(code, %message, latency_ms, "response");
+                tracing::warn!(code = name, detail, latency_ms, "response");
             }
-            _ => tracing::info!(code, %message, latency_ms, "response"),
+            _ => tracing::info!(code = name, detail, latency_ms, "response"),
         }
     }
 }
