@@ -1,5 +1,5 @@
-//! `ilqr-service`: trajectory optimisation with iLQR, as a CLI and an HTTP
-//! service.
+//! `ilqr-service`: trajectory optimisation with iLQR, as a CLI and a
+//! service over HTTP and gRPC.
 //!
 //! # Layout
 //!
