@@ -1,7 +1,7 @@
 # ilqr-service container image.
 #
 #   docker build -t ilqr-service .
-#   docker run --rm -p 8080:8080 ilqr-service
+#   docker run --rm -p 8080:8080 -p 50051:50051 ilqr-service   # HTTP, gRPC
 #
 # Four stages:
 #   chef     - Rust toolchain + cargo-chef, shared by the next two stages.
@@ -54,7 +54,7 @@ FROM gcr.io/distroless/cc-debian12:nonroot AS runtime
 ARG VERSION=0.1.0
 ARG REVISION=unknown
 LABEL org.opencontainers.image.title="ilqr-service" \
-      org.opencontainers.image.description="Trajectory optimisation with iLQR, served over HTTP" \
+      org.opencontainers.image.description="Trajectory optimisation with iLQR, served over HTTP and gRPC" \
       org.opencontainers.image.version="${VERSION}" \
       org.opencontainers.image.revision="${REVISION}" \
       org.opencontainers.image.licenses="MIT OR Apache-2.0" \
@@ -67,7 +67,10 @@ LABEL org.opencontainers.image.title="ilqr-service" \
 COPY --from=builder /app/target/release/ilqr-service /usr/local/bin/ilqr-service
 
 # Bind on all interfaces inside the container (loopback would be unreachable
-# through the published port). RUST_LOG feeds tracing-subscriber's EnvFilter.
+# through the published ports): HTTP and gRPC. ILQR_GRPC_BIND is set, not
+# left to the default, so that a gRPC port that cannot be bound stops the
+# container instead of leaving it serving HTTP only. RUST_LOG feeds
+# tracing-subscriber's EnvFilter.
 # `docker stop` (and compose) send SIGKILL 10 s after SIGTERM by default. The
 # binary's default drain is 10 s, so solves it cancels at the end would never
 # be answered; 7 s leaves time for that. (After the drain, connections get up
@@ -76,10 +79,13 @@ COPY --from=builder /app/target/release/ilqr-service /usr/local/bin/ilqr-service
 # `docker run --stop-timeout 40 -e ILQR_SHUTDOWN_GRACE_SECS=30` (compose:
 # `stop_grace_period`). Kubernetes gives 30 s and sets its own value.
 ENV ILQR_BIND=0.0.0.0:8080 \
+    ILQR_GRPC_BIND=0.0.0.0:50051 \
     ILQR_SHUTDOWN_GRACE_SECS=7 \
     RUST_LOG=info
 
-EXPOSE 8080
+# HTTP/JSON, and gRPC (ilqr.v1.TrajectoryOptimizer, grpc.health.v1,
+# reflection).
+EXPOSE 8080 50051
 
 USER 65532:65532
 

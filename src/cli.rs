@@ -14,7 +14,7 @@ use crate::problem::{Invalid, Limits, ParseError, ProblemSpec, parse};
 use crate::server::{self, Config};
 use crate::solve::{SolveResult, solve};
 
-/// Trajectory optimisation with iLQR, served over HTTP.
+/// Trajectory optimisation with iLQR, served over HTTP and gRPC.
 ///
 /// With no subcommand the binary serves, taking the flags of `serve`
 /// (`ilqr-service --bind 127.0.0.1:9000`); they cannot be combined with
@@ -38,8 +38,8 @@ pub struct Cli {
 
 #[derive(Debug, Subcommand)]
 enum Command {
-    /// Serve the HTTP API (also what the binary does with no subcommand,
-    /// with the same flags).
+    /// Serve the HTTP API and the gRPC one (also what the binary does with
+    /// no subcommand, with the same flags).
     Serve(Config),
     /// Solve one problem file and print a summary.
     ///

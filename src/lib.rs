@@ -1,5 +1,5 @@
-//! `ilqr-service`: trajectory optimisation with iLQR, as a CLI and an HTTP
-//! service.
+//! `ilqr-service`: trajectory optimisation with iLQR, as a CLI and a
+//! service over HTTP and gRPC.
 //!
 //! # Layout
 //!
@@ -14,7 +14,10 @@
 //! * [`service`]: the solve service every transport calls: validation,
 //!   admission against the expected wait, time budgets, the worker pool,
 //!   cancellation, draining and the solve metrics.
-//! * [`server`]: the HTTP service (axum) over it, its errors and metrics.
+//! * [`server`]: the HTTP service (axum) over it, its errors and metrics,
+//!   and the process that serves both transports.
+//! * [`grpc`]: the gRPC service (tonic) over the same solve service:
+//!   `proto/ilqr/v1/ilqr.proto`, with health and reflection.
 //! * [`cli`]: the `ilqr-service` command line (`serve`, `solve`, `openapi`,
 //!   `healthcheck`).
 //!
@@ -22,6 +25,7 @@
 //! nothing about JSON or HTTP.
 
 pub mod cli;
+pub mod grpc;
 pub mod models;
 pub mod problem;
 pub mod schema;

@@ -67,6 +67,107 @@ fn a_taken_port_names_the_flag_that_moves_the_service() {
     drop(taken);
 }
 
+/// A `--grpc-bind` port that is taken is an error as `--bind`'s is, naming
+/// its own flag, with exit status 1, at once.
+#[test]
+fn a_taken_grpc_port_names_its_flag() {
+    let taken = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let grpc = taken.local_addr().unwrap().to_string();
+    let out = Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args(["serve", "--bind", "127.0.0.1:0", "--grpc-bind", &grpc])
+        .args(["--workers", "1"])
+        .stdout(std::process::Stdio::null())
+        .output()
+        .unwrap();
+    let stderr = String::from_utf8(out.stderr).unwrap();
+    assert_eq!(out.status.code(), Some(1), "{stderr}");
+    assert!(
+        stderr.starts_with(&format!("error: cannot listen on {grpc}: address in use (")),
+        "{stderr}"
+    );
+    assert!(
+        stderr.ends_with("; pick another with --grpc-bind HOST:PORT (or ILQR_GRPC_BIND)\n"),
+        "{stderr}"
+    );
+    drop(taken);
+}
+
+/// The binary serves gRPC at `--grpc-bind` beside HTTP: health says
+/// SERVING, a solve and the model list answer; SIGTERM then ends it at
+/// once (nothing in flight) with status 0.
+#[test]
+fn the_binary_serves_grpc_beside_http() {
+    use ilqr_service::grpc::proto;
+    use ilqr_service::grpc::proto::trajectory_optimizer_client::TrajectoryOptimizerClient;
+    use tonic_health::pb::health_check_response::ServingStatus;
+    use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
+    let grpc = format!("127.0.0.1:{}", free_port());
+    let (mut server, _) = serve_on_free_port(|cmd, bind| {
+        cmd.args([
+            "serve",
+            "--bind",
+            bind,
+            "--grpc-bind",
+            &grpc,
+            "--workers",
+            "1",
+        ])
+        .stdout(std::process::Stdio::null())
+        .stderr(std::process::Stdio::null());
+    });
+    let runtime = tokio::runtime::Builder::new_current_thread()
+        .enable_all()
+        .build()
+        .unwrap();
+    runtime.block_on(async {
+        let channel = tonic::transport::Endpoint::from_shared(format!("http://{grpc}"))
+            .unwrap()
+            .connect()
+            .await
+            .unwrap();
+        let health = HealthClient::new(channel.clone())
+            .check(HealthCheckRequest {
+                service: "ilqr.v1.TrajectoryOptimizer".into(),
+            })
+            .await
+            .unwrap()
+            .into_inner();
+        assert_eq!(health.status(), ServingStatus::Serving);
+        let mut client = TrajectoryOptimizerClient::new(channel);
+        let solved = client
+            .solve(proto::SolveRequest { problem: None })
+            .await
+            .unwrap()
+            .into_inner()
+            .result
+            .unwrap();
+        assert_eq!(solved.status(), proto::SolveStatus::Converged);
+        let models = client
+            .list_models(proto::ListModelsRequest {})
+            .await
+            .unwrap()
+            .into_inner()
+            .models;
+        assert_eq!(models.len(), 2);
+    });
+    // The client's connection closes with its runtime: an open one would
+    // get the drain's GOAWAY and up to 5 s to close.
+    drop(runtime);
+    let started = std::time::Instant::now();
+    let ok = Command::new("kill")
+        .args(["-TERM", &server.0.id().to_string()])
+        .status()
+        .unwrap();
+    assert!(ok.success());
+    let status = server.0.wait().unwrap();
+    assert_eq!(status.code(), Some(0));
+    assert!(
+        started.elapsed() < std::time::Duration::from_secs(3),
+        "{:?}",
+        started.elapsed()
+    );
+}
+
 #[test]
 fn settings_out_of_range_are_rejected_before_serving() {
     for (args, says) in [
@@ -110,6 +211,11 @@ fn settings_out_of_range_are_rejected_before_serving() {
              expected at least 1 ms, got 0",
         ),
         (&["--max-time-limit-ms", "0"], "--max-time-limit-ms"),
+        (
+            &["--grpc-bind", "localhost:50051"],
+            "--grpc-bind / ILQR_GRPC_BIND takes IP:PORT, e.g. 0.0.0.0:50051, 127.0.0.1:50051 \
+             or [::]:50051 (host names are not resolved), got \"localhost:50051\"",
+        ),
         // Not numbers, or negative: not "invalid digit found in string" or
         // "unexpected argument '-1' found".
         (
@@ -515,6 +621,10 @@ fn serve_on_free_port_of(host: &str, configure: impl Fn(&mut Command, &str)) -> 
     for _ in 0..3 {
         let bind = format!("{host}:{}", free_port());
         let mut cmd = Command::new(env!("CARGO_BIN_EXE_ilqr-service"));
+        // gRPC on a port of its own (a case may set another): the default,
+        // 0.0.0.0:50051, is one port for every server these tests run at
+        // once.
+        cmd.env("ILQR_GRPC_BIND", format!("{host}:0"));
         configure(&mut cmd, &bind);
         let mut server = Child(cmd.spawn().unwrap());
         let started = std::time::Instant::now();
@@ -1008,6 +1118,7 @@ fn json_logs_keep_one_type_per_field_and_overload_does_not_flood_them() {
     let listening = lines.iter().find(|l| l["message"] == "listening").unwrap();
     for setting in [
         "version",
+        "grpc_addr",
         "queue_capacity",
         "max_time_limit_ms",
         "shutdown_grace_secs",

@@ -31,6 +31,7 @@ mod recover;
 mod validate;
 pub mod wire;
 
+pub(crate) use recover::escape_token;
 pub use recover::{MAX_OBJECTS, ParseError, RETRY_BYTES, Shapes, clip, elide, num, parse};
 pub use validate::{FieldError, Invalid, MAX_REPORTED_BYTES, MAX_REPORTED_ERRORS};
 

@@ -8,9 +8,15 @@
 //!   panicked, and `499` for a request whose client left before its answer
 //!   (its solve counts as `cancelled` below). Not counted: what hyper
 //!   rejects before any route runs (400 for broken framing, 414, 431);
+//! * `grpc_requests_total{method, code}`, counter, every call of the gRPC
+//!   optimizer service by method (`Solve`, `SolveStream`, …) and status
+//!   code (`OK`, `INVALID_ARGUMENT`, …; `CANCELLED` for a call its caller
+//!   left, or whose deadline tonic enforced, before the answer); and
+//!   `grpc_request_duration_seconds{method}`, histogram, to the call's end
+//!   (a stream's last message);
 //! * `solves_total{status, transport}`, counter, by solve status
-//!   (`converged`, …) and front end (`http`); a solve withdrawn from the
-//!   queue because its client left counts as `cancelled`;
+//!   (`converged`, …) and front end (`http`, `grpc`); a solve withdrawn
+//!   from the queue because its client left counts as `cancelled`;
 //! * `solve_rejections_total{reason, transport}`, counter, every `/solve`
 //!   request that got an error: `malformed_json`, `unsupported_media_type`,
 //!   `too_large`, `body_timeout`, `unreadable_body`, `invalid`,
@@ -125,6 +131,15 @@ fn describe() {
     describe_counter!(
         "http_requests_total",
         "Requests that reached a route, by matched route (\"unmatched\" for none) and the HTTP status of their answer (499: the client left first)"
+    );
+    describe_counter!(
+        "grpc_requests_total",
+        "Calls of the gRPC optimizer service, by method and status code (CANCELLED: the caller left, or its deadline passed, first)"
+    );
+    describe_histogram!(
+        "grpc_request_duration_seconds",
+        Unit::Seconds,
+        "Time from a gRPC call's start to its end (a stream's last message), by method"
     );
     describe_counter!(
         "solves_total",

@@ -1,4 +1,6 @@
-//! The HTTP service: configuration, state, middleware, shutdown.
+//! The service process: configuration, state, the HTTP API (its
+//! middleware and routes) and, beside it, the gRPC one ([`crate::grpc`]),
+//! both over one solve service; shutdown.
 //!
 //! # Mechanisms
 //!
@@ -14,10 +16,11 @@
 //!   half-closes its socket: see the comment in [`run`]), which withdraws
 //!   the queued solve or cancels the running one.
 //! * **Shutdown.** On SIGTERM/SIGINT `/readyz` turns 503 and `/solve` answers
-//!   503; in-flight solves get `shutdown_grace` to finish, then the rest are
-//!   cancelled (a running one answers 200 with status `cancelled` and its
-//!   best trajectory so far; one still queued, which has computed nothing,
-//!   answers 503 `shutting-down`), then the server stops.
+//!   503 (gRPC: health `NOT_SERVING`, solves `UNAVAILABLE`); in-flight
+//!   solves of both transports get `shutdown_grace` to finish, then the
+//!   rest are cancelled (a running one answers 200 with status `cancelled`
+//!   and its best trajectory so far; one still queued, which has computed
+//!   nothing, answers 503 `shutting-down`), then the server stops.
 //! * **CPU work stays on the pool.** A worker serialises its result and, if
 //!   the request's `Accept-Encoding` admits gzip, compresses it (the
 //!   service runs the handler's encoder there); the runtime only moves
@@ -41,6 +44,7 @@ use std::time::Duration;
 use tokio::net::TcpListener;
 
 pub use error::{ApiError, Overload, PROBLEM_JSON, Problem};
+pub(crate) use routes::drop_unusable_request_id;
 pub use routes::{ApiDoc, app, openapi, openapi_json};
 
 use crate::problem::{DEFAULT_HORIZON, DEFAULT_MAX_HORIZON, Limits};
@@ -70,13 +74,26 @@ pub const MAX_READ_TIMEOUT_SECS: u64 = 3600;
 /// so (and names both spellings: clap's own names only the flag, and the
 /// value may have come from the environment).
 fn parse_bind(value: &str) -> Result<SocketAddr, String> {
+    parse_addr(value, "--bind / ILQR_BIND", 8080)
+}
+
+/// `--grpc-bind` / `ILQR_GRPC_BIND`, as [`parse_bind`].
+fn parse_grpc_bind(value: &str) -> Result<SocketAddr, String> {
+    parse_addr(value, "--grpc-bind / ILQR_GRPC_BIND", 50051)
+}
+
+fn parse_addr(value: &str, name: &str, port: u16) -> Result<SocketAddr, String> {
     value.parse().map_err(|_| {
         format!(
-            "--bind / ILQR_BIND takes IP:PORT, e.g. 0.0.0.0:8080, 127.0.0.1:8080 or \
-             [::]:8080 (host names are not resolved), got {value:?}"
+            "{name} takes IP:PORT, e.g. 0.0.0.0:{port}, 127.0.0.1:{port} or \
+             [::]:{port} (host names are not resolved), got {value:?}"
         )
     })
 }
+
+/// Where the gRPC service listens when `--grpc-bind` is not given.
+pub const DEFAULT_GRPC_BIND: SocketAddr =
+    SocketAddr::new(std::net::IpAddr::V4(std::net::Ipv4Addr::UNSPECIFIED), 50051);
 
 /// A whole number from `min` to `max`, or an error that says the range
 /// (`expected`) and what was given: clap's own parsers say "number would
@@ -217,6 +234,14 @@ pub struct Config {
     /// differs between machines.
     #[arg(long, env = "ILQR_BIND", default_value = "0.0.0.0:8080", value_parser = parse_bind)]
     pub bind: SocketAddr,
+    /// Address of the gRPC service (`ilqr.v1.TrajectoryOptimizer`, with the
+    /// standard health and reflection services), IP:PORT as for `--bind`
+    /// (default: 0.0.0.0:50051). When given, an address that cannot be
+    /// bound ends the process, as for `--bind`; when the default is taken
+    /// (by another instance on the same machine), a warning says so and
+    /// the service runs without gRPC.
+    #[arg(long, env = "ILQR_GRPC_BIND", value_parser = parse_grpc_bind)]
+    pub grpc_bind: Option<SocketAddr>,
     /// Solver threads, 1 to 1024 (default: the available cores).
     #[arg(long, env = "ILQR_WORKERS", value_parser = parse_threads, allow_negative_numbers = true)]
     pub workers: Option<std::num::NonZeroUsize>,
@@ -481,6 +506,16 @@ impl AppState {
         &self.service
     }
 
+    /// What the gRPC front end takes from the configuration.
+    pub fn grpc_settings(&self) -> crate::grpc::Settings {
+        crate::grpc::Settings {
+            limits: self.config.limits(),
+            default_time_limit_ms: self.config.default_time_limit_ms,
+            max_message_bytes: self.config.max_body_bytes,
+            keepalive: Duration::from_secs(self.config.read_timeout_secs),
+        }
+    }
+
     /// Stop admitting solves, wait up to the grace period for those in
     /// flight, then cancel what is left (see [`SolveService::drain`]).
     pub async fn drain(&self) {
@@ -493,25 +528,41 @@ impl AppState {
 /// answers before the server returns anyway (closing them).
 const CLOSE_TIMEOUT: Duration = Duration::from_secs(5);
 
-/// Serve on `listener` until `shutdown` resolves, then drain and return.
+/// Serve HTTP on `listener` until `shutdown` resolves, then drain and
+/// return: [`run_with_grpc`] without the gRPC service.
+pub async fn run(
+    listener: TcpListener,
+    state: Arc<AppState>,
+    shutdown: impl Future<Output = ()> + Send + 'static,
+) -> std::io::Result<()> {
+    run_with_grpc(listener, None, state, shutdown).await
+}
+
+/// Serve HTTP on `listener`, and the gRPC service ([`crate::grpc`]) on
+/// `grpc` if given, both over the state's one solve service, until
+/// `shutdown` resolves; then drain and return.
 ///
-/// The accept loop is `axum::serve`'s, plus what that lacks: a header read
-/// timeout (hyper's `header_read_timeout` needs a timer, which
+/// The HTTP accept loop is `axum::serve`'s, plus what that lacks: a header
+/// read timeout (hyper's `header_read_timeout` needs a timer, which
 /// `axum::serve` does not set, so a client that never finished its headers
 /// held its connection forever), the same limit on a write that makes no
 /// progress ([`stall::WriteStall`]: a client that never read its answer
 /// held it forever) and a bound on shutdown. HTTP/1.1 only:
 /// hyper's HTTP/2 has no idle or first-request timeout, and hyper-util's
 /// HTTP/1-or-2 detection none either, so a connection that sent nothing, or
-/// the start of the HTTP/2 preface, stayed open forever. (gRPC will want
-/// HTTP/2 with a timeout of its own.) Shutdown:
-/// on `shutdown`, [`AppState::drain`] runs while connections are still
-/// accepted (`/readyz` and `/solve` answer 503); then the listener closes,
-/// every connection is told to finish its current exchange, and after
-/// [`CLOSE_TIMEOUT`] the rest are dropped. The longest shutdown is thus the
-/// grace period plus 5 s, whatever the clients do.
-pub async fn run(
+/// the start of the HTTP/2 preface, stayed open forever. gRPC has its own
+/// listener, with HTTP/2 keepalive pings (see [`crate::grpc`]).
+///
+/// Shutdown: on `shutdown`, gRPC health turns `NOT_SERVING` and
+/// [`AppState::drain`] runs while connections are still accepted
+/// (`/readyz` and `/solve` answer 503, gRPC solves `UNAVAILABLE`); then
+/// both listeners close, every HTTP connection is told to finish its
+/// current exchange and every gRPC connection its calls (GOAWAY), and
+/// after [`CLOSE_TIMEOUT`] the rest are dropped. The longest shutdown is
+/// thus the grace period plus 5 s, whatever the clients do.
+pub async fn run_with_grpc(
     listener: TcpListener,
+    grpc: Option<TcpListener>,
     state: Arc<AppState>,
     shutdown: impl Future<Output = ()> + Send + 'static,
 ) -> std::io::Result<()> {
@@ -525,10 +576,28 @@ pub async fn run(
         app(Arc::clone(&state)).map_request(|req: axum::http::Request<hyper::body::Incoming>| {
             req.map(axum::body::Body::new)
         });
+    let grpc = grpc.map(|listener| {
+        let server = crate::grpc::Server::new(Arc::clone(&state.service), state.grpc_settings());
+        let health = server.health();
+        let (stop, stopped) = tokio::sync::oneshot::channel::<()>();
+        let served = async move {
+            let stopped = async {
+                let _ = stopped.await;
+            };
+            if let Err(e) = server.serve(listener, stopped).await {
+                tracing::error!(error = %e, "the gRPC server stopped");
+            }
+        };
+        (health, stop, tokio::spawn(served))
+    });
     let drained = {
         let state = Arc::clone(&state);
+        let health = grpc.as_ref().map(|(health, _, _)| health.clone());
         async move {
             shutdown.await;
+            if let Some(health) = health {
+                health.draining().await;
+            }
             state.drain().await;
         }
     };
@@ -598,18 +667,31 @@ pub async fn run(
     }
     drop(listener);
     let _ = stop_tx.send(true);
+    let mut grpc = grpc.map(|(_, stop, task)| {
+        let _ = stop.send(());
+        task
+    });
     let open = connections.len();
     let closed = tokio::time::timeout(CLOSE_TIMEOUT, async {
         while connections.join_next().await.is_some() {}
+        if let Some(task) = &mut grpc {
+            let _ = task.await;
+        }
     })
     .await;
     if closed.is_err() {
         tracing::warn!(
             open = connections.len(),
             of = open,
+            grpc_open = grpc.as_ref().is_some_and(|task| !task.is_finished()),
             "connections still open after the drain; closing them"
         );
         connections.shutdown().await;
+        // The gRPC server's accept loop; tonic runs each connection in a
+        // task of its own, which ends with the runtime.
+        if let Some(task) = grpc {
+            task.abort();
+        }
     }
     Ok(())
 }
@@ -707,14 +789,20 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
         // that "listening" is logged only by a server that can serve.
         let state = AppState::new(config)?;
         let config = &state.config;
-        let listener = TcpListener::bind(config.bind)
-            .await
-            .map_err(|e| std::io::Error::new(e.kind(), cannot_listen(config.bind, &e)))?;
+        let listener = TcpListener::bind(config.bind).await.map_err(|e| {
+            std::io::Error::new(e.kind(), cannot_listen(config.bind, &e, BIND_FLAG))
+        })?;
+        let grpc = bind_grpc(config.grpc_bind, DEFAULT_GRPC_BIND).await?;
+        let grpc_addr = match &grpc {
+            Some(grpc) => grpc.local_addr()?.to_string(),
+            None => "none".to_owned(),
+        };
         // The effective settings, whichever of flag, variable or default
         // each came from.
         tracing::info!(
             version = env!("CARGO_PKG_VERSION"),
             addr = %listener.local_addr()?,
+            grpc_addr,
             workers = config.workers(),
             runtime_threads = config.runtime_threads(),
             queue_capacity = config.queue_capacity,
@@ -728,7 +816,7 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
             gzip_level = config.gzip_level,
             "listening"
         );
-        run(listener, state, shutdown_signal()).await
+        run_with_grpc(listener, grpc, state, shutdown_signal()).await
     });
     // Everything that must finish (the drain, the answers being written)
     // has when `run` returns. Dropping the runtime would also wait for its
@@ -738,22 +826,55 @@ pub fn serve_forever(config: Config) -> std::io::Result<()> {
     served
 }
 
+/// The gRPC listener: at `given` (`--grpc-bind`), or at `default`
+/// ([`DEFAULT_GRPC_BIND`]) when it is not given. A given address that
+/// cannot be bound is an error, as `--bind`'s is; the default address in
+/// use is a warning, and no gRPC (so that a second instance on one
+/// machine, started with only `--bind`, as test harnesses do, still
+/// serves HTTP).
+async fn bind_grpc(
+    given: Option<SocketAddr>,
+    default: SocketAddr,
+) -> std::io::Result<Option<TcpListener>> {
+    let addr = given.unwrap_or(default);
+    match TcpListener::bind(addr).await {
+        Ok(listener) => Ok(Some(listener)),
+        Err(e) if given.is_none() && e.kind() == std::io::ErrorKind::AddrInUse => {
+            tracing::warn!(
+                "serving without gRPC: {}",
+                cannot_listen(addr, &e, GRPC_BIND_FLAG)
+            );
+            Ok(None)
+        }
+        Err(e) => Err(std::io::Error::new(
+            e.kind(),
+            cannot_listen(addr, &e, GRPC_BIND_FLAG),
+        )),
+    }
+}
+
+/// How to move the HTTP service, for [`cannot_listen`].
+const BIND_FLAG: &str = "--bind HOST:PORT (or ILQR_BIND)";
+
+/// How to move the gRPC service, for [`cannot_listen`].
+const GRPC_BIND_FLAG: &str = "--grpc-bind HOST:PORT (or ILQR_GRPC_BIND)";
+
 /// Why the service cannot listen on `bind`, and, where another address
-/// would do, how to give one: the default port is often taken on a
-/// developer's machine.
-fn cannot_listen(bind: SocketAddr, e: &std::io::Error) -> String {
-    const PICK: &str = "pick another with --bind HOST:PORT (or ILQR_BIND)";
+/// would do, how to give one (`flag`): the default port is often taken on
+/// a developer's machine.
+fn cannot_listen(bind: SocketAddr, e: &std::io::Error, flag: &str) -> String {
     match e.kind() {
         std::io::ErrorKind::AddrInUse => {
-            format!("cannot listen on {bind}: address in use ({e}); {PICK}")
+            format!("cannot listen on {bind}: address in use ({e}); pick another with {flag}")
         }
         std::io::ErrorKind::PermissionDenied => format!(
             "cannot listen on {bind}: permission denied ({e}; ports below 1024 need \
-             privileges); {PICK}"
+             privileges); pick another with {flag}"
         ),
-        std::io::ErrorKind::AddrNotAvailable => {
-            format!("cannot listen on {bind}: no such address on this machine ({e}); {PICK}")
-        }
+        std::io::ErrorKind::AddrNotAvailable => format!(
+            "cannot listen on {bind}: no such address on this machine ({e}); pick another \
+             with {flag}"
+        ),
         _ => format!("cannot listen on {bind}: {e}"),
     }
 }
@@ -903,5 +1024,34 @@ fn healthz(addr: &SocketAddr, deadline: std::time::Instant) -> Result<(), String
         Ok(())
     } else {
         Err(format!("answer: {}", String::from_utf8_lossy(&head)))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A `--grpc-bind` that is taken ends the process with the flag named;
+    /// the default taken leaves the service without gRPC.
+    #[tokio::test]
+    async fn a_taken_grpc_port_is_fatal_only_when_given() {
+        let taken = TcpListener::bind("127.0.0.1:0").await.unwrap();
+        let addr = taken.local_addr().unwrap();
+        let e = bind_grpc(Some(addr), DEFAULT_GRPC_BIND).await.unwrap_err();
+        assert_eq!(e.kind(), std::io::ErrorKind::AddrInUse);
+        let message = e.to_string();
+        assert!(
+            message.starts_with(&format!("cannot listen on {addr}: address in use (")),
+            "{message}"
+        );
+        assert!(
+            message.ends_with("; pick another with --grpc-bind HOST:PORT (or ILQR_GRPC_BIND)"),
+            "{message}"
+        );
+        assert!(bind_grpc(None, addr).await.unwrap().is_none());
+        let free = bind_grpc(None, "127.0.0.1:0".parse().unwrap())
+            .await
+            .unwrap();
+        assert!(free.is_some());
     }
 }

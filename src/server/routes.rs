@@ -910,7 +910,9 @@ const MAX_REQUEST_ID_LEN: usize = 128;
 /// request, so it must be usable there: 1 to 128 visible ASCII characters.
 /// Anything else (empty, binary, a 70 kB value) is removed, and the request
 /// gets a generated UUID instead, like a request that sent none.
-fn drop_unusable_request_id(mut req: Request) -> Request {
+pub(crate) fn drop_unusable_request_id<B>(
+    mut req: axum::http::Request<B>,
+) -> axum::http::Request<B> {
     let usable = |v: &axum::http::HeaderValue| {
         let b = v.as_bytes();
         !b.is_empty() && b.len() <= MAX_REQUEST_ID_LEN && b.iter().all(|c| c.is_ascii_graphic())
