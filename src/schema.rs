@@ -430,3 +430,52 @@ pub fn feedforward() -> Schema {
         .build()
         .into()
 }
+
+/// One Server-Sent Event of `POST /solve/stream`, as OpenAPI 3.1 describes
+/// an event stream: `schema` is each event, `{event, data}`, and `data` is
+/// JSON text whose schema is `contentSchema`. One variant per event name.
+pub fn stream_event() -> Schema {
+    let event = |name: &str, data: &str, description: &str| -> Schema {
+        ObjectBuilder::new()
+            .property(
+                "event",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .enum_values(Some([name])),
+            )
+            .property(
+                "data",
+                ObjectBuilder::new()
+                    .schema_type(Type::String)
+                    .content_media_type("application/json")
+                    .content_schema(Some(Ref::from_schema_name(data)))
+                    .description(Some(description)),
+            )
+            .required("event")
+            .required("data")
+            .build()
+            .into()
+    };
+    OneOfBuilder::new()
+        .item(event(
+            "iteration",
+            "TraceEntry",
+            "One iteration as it ends: a row of the result's `trace`.",
+        ))
+        .item(event(
+            "result",
+            "SolveResult",
+            "The last event of a stream that was answered: the result, as `POST /solve` answers it.",
+        ))
+        .item(event(
+            "error",
+            "Problem",
+            "The last event of a stream that could not be answered after it began: a problem document.",
+        ))
+        .description(Some(
+            "An event: an `iteration` per iteration, then one `result` or one `error`. \
+             Comment lines (`:`) keep an idle connection open.",
+        ))
+        .build()
+        .into()
+}

@@ -737,6 +737,22 @@ async fn solve(
     Ok(res)
 }
 
+/// An event of `/solve/stream`, for the OpenAPI document only
+/// ([`crate::schema::stream_event`]).
+struct StreamEventDoc;
+
+impl utoipa::PartialSchema for StreamEventDoc {
+    fn schema() -> utoipa::openapi::RefOr<utoipa::openapi::schema::Schema> {
+        crate::schema::stream_event().into()
+    }
+}
+
+impl utoipa::ToSchema for StreamEventDoc {
+    fn name() -> std::borrow::Cow<'static, str> {
+        "StreamEvent".into()
+    }
+}
+
 /// Solve, streaming progress as Server-Sent Events.
 ///
 /// The same problem, validation and solve as `POST /solve`, answered as
@@ -756,7 +772,7 @@ async fn solve(
     tag = "solve",
     request_body(content = ProblemDoc, content_type = "application/json"),
     responses(
-        (status = 200, description = "A stream of `iteration` events (data: a TraceEntry), then one `result` event (data: a SolveResult) or one `error` event (data: a Problem)", content_type = "text/event-stream", body = String),
+        (status = 200, description = "A stream of `iteration` events (data: a TraceEntry), then one `result` event (data: a SolveResult) or one `error` event (data: a Problem)", content_type = "text/event-stream", body = StreamEventDoc),
         (status = 400, description = "The body is not JSON, or could not be read", body = Problem, content_type = "application/problem+json"),
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 413, description = "The body is over the size limit", body = Problem, content_type = "application/problem+json"),
