@@ -721,4 +721,126 @@ mod tests {
         assert_eq!(note("/warm_start/controls/0"), None);
         assert_eq!(note("/dt"), None);
     }
+
+    mod arbitrary {
+        use proptest::collection::{btree_map, vec};
+        use proptest::prelude::*;
+
+        use super::*;
+
+        /// Numbers a caller may send: ordinary, extreme and not numbers.
+        fn number() -> impl Strategy<Value = f64> {
+            prop_oneof![
+                4 => -20.0..20.0f64,
+                1 => Just(0.0),
+                1 => Just(f64::NAN),
+                1 => Just(f64::INFINITY),
+                1 => Just(f64::NEG_INFINITY),
+                1 => Just(f64::MAX),
+                1 => Just(-f64::MIN_POSITIVE),
+            ]
+        }
+
+        fn numbers(max: usize) -> impl Strategy<Value = Vec<f64>> {
+            vec(number(), 0..max)
+        }
+
+        fn model() -> impl Strategy<Value = Option<proto::Model>> {
+            let name = prop_oneof![
+                Just(None),
+                Just(Some("quadrotor_2d".to_owned())),
+                Just(Some("unicycle".to_owned())),
+                Just(Some(String::new())),
+                "[a-z/~\"]{0,8}".prop_map(Some),
+            ];
+            let parameter = prop_oneof![
+                Just("mass".to_owned()),
+                Just("type".to_owned()),
+                Just("arm_length".to_owned()),
+                "[a-z/~]{0,6}",
+            ];
+            proptest::option::of((name, btree_map(parameter, number(), 0..4)).prop_map(
+                |(r#type, parameters)| proto::Model {
+                    r#type,
+                    parameters: parameters.into_iter().collect(),
+                },
+            ))
+        }
+
+        prop_compose! {
+            fn problem()(
+                model in model(),
+                integrator in -1..4i32,
+                method in -1..4i32,
+                dt in proptest::option::of(number()),
+                horizon in proptest::option::of(prop_oneof![0..8u32, Just(u32::MAX)]),
+                initial_state in numbers(8),
+                goal_state in numbers(8),
+                weights in proptest::option::of((numbers(8), numbers(4), numbers(8))),
+                obstacles in proptest::option::of(vec((numbers(4), proptest::option::of(number())), 0..4)),
+                initial_controls in numbers(20),
+                warm_start_controls in numbers(20),
+                solver in proptest::option::of((
+                    proptest::option::of(any::<u32>()),
+                    proptest::option::of(number()),
+                    proptest::option::of(any::<u64>()),
+                )),
+            ) -> proto::Problem {
+                proto::Problem {
+                    model,
+                    integrator,
+                    dt,
+                    horizon,
+                    initial_state,
+                    goal_state,
+                    weights: weights.map(|(state, control, terminal)| proto::Weights { state, control, terminal }),
+                    obstacles: obstacles.map(|items| proto::Obstacles {
+                        items: items
+                            .into_iter()
+                            .map(|(center, weight)| proto::Obstacle { center, weight })
+                            .collect(),
+                    }),
+                    initial_controls,
+                    warm_start_controls,
+                    solver: solver.map(|(max_iterations, tolerance, time_limit_ms)| proto::SolverOptions {
+                        max_iterations,
+                        tolerance,
+                        time_limit_ms,
+                        method,
+                    }),
+                    output: None,
+                }
+            }
+        }
+
+        proptest! {
+            #![proptest_config(ProptestConfig::with_cases(2000))]
+
+            /// Whatever a message holds, converting and validating it ends
+            /// in a problem or in field violations that each name a field,
+            /// never in a panic or an internal error.
+            #[test]
+            fn any_message_is_a_problem_or_field_violations(p in problem()) {
+                let limits = Limits::default();
+                let status = match spec_of(Some(p), &limits) {
+                    Ok((spec, flat)) => match spec.validate(&limits) {
+                        Ok(()) => return Ok(()),
+                        Err(invalid) => crate::grpc::status::invalid(invalid, &flat, "id"),
+                    },
+                    Err(None) => return Err(TestCaseError::fail("an internal error")),
+                    Err(Some(rejected)) => {
+                        prop_assert!(!rejected.invalid.errors.is_empty());
+                        crate::grpc::status::invalid(rejected.invalid, &rejected.flat, "id")
+                    }
+                };
+                prop_assert_eq!(status.code(), tonic::Code::InvalidArgument);
+                let details = tonic_types::StatusExt::get_error_details(&status);
+                let violations = details.bad_request().map(|b| b.field_violations.clone());
+                prop_assert!(violations.as_ref().is_some_and(|v| !v.is_empty()), "{:?}", status);
+                for v in violations.unwrap_or_default() {
+                    prop_assert!(!v.field.is_empty() && !v.description.is_empty(), "{:?}", v);
+                }
+            }
+        }
+    }
 }
