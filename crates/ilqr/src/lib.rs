@@ -30,6 +30,11 @@
 //!   [`Status`] that says how a solve ended and the per-iteration
 //!   [`TraceRow`]. With [`Options::second_order`] the backward pass keeps
 //!   the dynamics' curvature (DDP) instead of dropping it (iLQR).
+//! * [`boxqp`]: a box-constrained QP, `min ½ uᵀH u + gᵀu` over
+//!   `lower ≤ u ≤ upper`, by projected Newton ([`solve_box_qp`]), with the
+//!   free set's factor for the clamped feedback gains
+//!   ([`BoxQpSolution::feedback_gain`]): the per-knot subproblem of a
+//!   control-limited (box-DDP) backward pass.
 //! * `kernels` (private): the column-major small-matrix kernels the Riccati
 //!   step ([`riccati_step`]) is written in.
 //!
@@ -61,6 +66,7 @@
 //! ```
 #![warn(missing_docs)]
 
+pub mod boxqp;
 pub mod cost;
 pub mod dynamics;
 mod kernels;
@@ -69,6 +75,7 @@ pub mod quadrotor;
 pub mod solver;
 pub mod unicycle;
 
+pub use boxqp::{BoxQpError, BoxQpOptions, BoxQpSolution, BoxQpStatus, solve_box_qp};
 pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
     TerminalCost, TerminalExpansion, TerminalTracking,

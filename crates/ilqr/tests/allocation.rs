@@ -133,3 +133,32 @@ fn the_fallback_and_the_final_gains_do_not_allocate() {
     );
     assert_eq!(during, 0, "{during} allocations: {s:?}");
 }
+
+/// The box-constrained QP and its feedback gain allocate nothing, on a
+/// problem with a control clamped at each bound and one free.
+#[test]
+fn a_box_qp_solve_does_not_allocate() {
+    use ilqr::{BoxQpOptions, BoxQpStatus, solve_box_qp};
+    use nalgebra::{SMatrix, SVector};
+
+    let h = SMatrix::<f64, 3, 3>::new(4.0, 1.0, 0.5, 1.0, 3.0, 0.2, 0.5, 0.2, 2.0);
+    let g = SVector::<f64, 3>::new(10.0, -10.0, 0.1);
+    let lower = SVector::<f64, 3>::new(-1.0, -1.0, f64::NEG_INFINITY);
+    let upper = SVector::<f64, 3>::new(1.0, 1.0, f64::INFINITY);
+    let q_ux = SMatrix::<f64, 3, 6>::repeat(1.0);
+    let options = BoxQpOptions::default();
+
+    let before = allocations();
+    COUNTING.with(|c| c.set(true));
+    let s = solve_box_qp(&h, &g, &lower, &upper, &SVector::zeros(), &options);
+    let k = s.as_ref().ok().and_then(|s| s.feedback_gain(&q_ux));
+    COUNTING.with(|c| c.set(false));
+    let during = allocations() - before;
+
+    let s = s.unwrap();
+    assert_eq!(s.status, BoxQpStatus::Converged);
+    assert_eq!(s.free, [false, false, true]);
+    assert!(s.iterations >= 1);
+    assert!(k.is_some());
+    assert_eq!(during, 0, "{during} allocations");
+}

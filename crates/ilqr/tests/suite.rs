@@ -8,6 +8,7 @@
 //! `allocation.rs` stays a binary of its own: it installs a counting
 //! global allocator, which would count the other families' allocations.
 
+mod boxqp;
 mod common;
 mod derivatives;
 mod integrators;
