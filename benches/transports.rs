@@ -102,14 +102,62 @@ fn cpu_ticks(pid: u32) -> (u64, u64) {
     (field(11), field(12))
 }
 
-/// Whether a client sends another solve: `count` of them if not 0, else
-/// until `end`.
-fn more(end: Instant, sent: &mut u64, count: u64) -> bool {
-    *sent += 1;
-    if count > 0 {
-        *sent <= count
-    } else {
-        Instant::now() < end
+/// One client's share of a round: when to stop, and the round's counts.
+#[derive(Clone)]
+struct Tally {
+    end: Instant,
+    /// Solves this client sends; 0: until `end`.
+    count: u64,
+    sent: u64,
+    solves: Arc<AtomicU64>,
+    failed: Arc<AtomicU64>,
+}
+
+impl Tally {
+    /// Whether to send another solve.
+    fn more(&mut self) -> bool {
+        self.sent += 1;
+        if self.count > 0 {
+            self.sent <= self.count
+        } else {
+            Instant::now() < self.end
+        }
+    }
+
+    /// Count an answer: a solve, or a failure.
+    fn record(&self, ok: bool) {
+        let counter = if ok { &self.solves } else { &self.failed };
+        counter.fetch_add(1, Ordering::Relaxed);
+    }
+}
+
+/// A round of `a.clients` tasks, each made by `client` from its tally,
+/// and the server's CPU time over it.
+async fn round<F, Fut>(a: &Args, client: F) -> Round
+where
+    F: Fn(Tally) -> Fut,
+    Fut: Future<Output = ()> + Send + 'static,
+{
+    let tally = Tally {
+        end: Instant::now() + Duration::from_secs(a.secs),
+        count: a.count / a.clients as u64,
+        sent: 0,
+        solves: Arc::new(AtomicU64::new(0)),
+        failed: Arc::new(AtomicU64::new(0)),
+    };
+    let before = cpu_ticks(a.pid);
+    let started = Instant::now();
+    let tasks: Vec<_> = (0..a.clients)
+        .map(|_| tokio::spawn(client(tally.clone())))
+        .collect();
+    for t in tasks {
+        let _ = t.await;
+    }
+    Round {
+        solves: tally.solves.load(Ordering::Relaxed),
+        failed: tally.failed.load(Ordering::Relaxed),
+        cpu: Cpu::since(a.pid, before),
+        wall: started.elapsed(),
     }
 }
 
@@ -140,81 +188,46 @@ struct Round {
 }
 
 async fn http_round(a: &Args, body: &serde_json::Value) -> Round {
-    let (solves, failed) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
     let url = format!("http://{}/solve", a.http);
-    let end = Instant::now() + Duration::from_secs(a.secs);
-    let per_client = a.count / a.clients as u64;
-    let before = cpu_ticks(a.pid);
-    let started = Instant::now();
-    let tasks: Vec<_> = (0..a.clients)
-        .map(|_| {
-            let (url, body) = (url.clone(), body.clone());
-            let (solves, failed) = (Arc::clone(&solves), Arc::clone(&failed));
-            tokio::spawn(async move {
-                let client = reqwest::Client::new();
-                let mut sent = 0;
-                while more(end, &mut sent, per_client) {
-                    let ok = match client.post(&url).json(&body).send().await {
-                        Ok(res) if res.status().is_success() => res.bytes().await.is_ok(),
-                        _ => false,
-                    };
-                    let counter = if ok { &solves } else { &failed };
-                    counter.fetch_add(1, Ordering::Relaxed);
-                }
-            })
-        })
-        .collect();
-    for t in tasks {
-        let _ = t.await;
-    }
-    Round {
-        solves: solves.load(Ordering::Relaxed),
-        failed: failed.load(Ordering::Relaxed),
-        cpu: Cpu::since(a.pid, before),
-        wall: started.elapsed(),
-    }
+    round(a, |mut tally| {
+        let (url, body) = (url.clone(), body.clone());
+        async move {
+            let client = reqwest::Client::new();
+            while tally.more() {
+                let ok = match client.post(&url).json(&body).send().await {
+                    Ok(res) if res.status().is_success() => res.bytes().await.is_ok(),
+                    _ => false,
+                };
+                tally.record(ok);
+            }
+        }
+    })
+    .await
 }
 
 async fn grpc_round(a: &Args, problem: &proto::Problem) -> Round {
-    let (solves, failed) = (Arc::new(AtomicU64::new(0)), Arc::new(AtomicU64::new(0)));
-    let end = Instant::now() + Duration::from_secs(a.secs);
-    let per_client = a.count / a.clients as u64;
     let endpoint = format!("http://{}", a.grpc);
-    let before = cpu_ticks(a.pid);
-    let started = Instant::now();
-    let tasks: Vec<_> = (0..a.clients)
-        .map(|_| {
-            let (endpoint, problem) = (endpoint.clone(), problem.clone());
-            let (solves, failed) = (Arc::clone(&solves), Arc::clone(&failed));
-            tokio::spawn(async move {
-                let Ok(channel) = tonic::transport::Endpoint::from_shared(endpoint) else {
-                    return;
+    round(a, |mut tally| {
+        let (endpoint, problem) = (endpoint.clone(), problem.clone());
+        async move {
+            let channel = match tonic::transport::Endpoint::from_shared(endpoint) {
+                Ok(endpoint) => endpoint.connect().await.ok(),
+                Err(_) => None,
+            };
+            // A client that cannot connect counts one failure.
+            let Some(channel) = channel else {
+                return tally.record(false);
+            };
+            let mut client = TrajectoryOptimizerClient::new(channel);
+            while tally.more() {
+                let request = proto::SolveRequest {
+                    problem: Some(problem.clone()),
                 };
-                let Ok(channel) = channel.connect().await else {
-                    return;
-                };
-                let mut client = TrajectoryOptimizerClient::new(channel);
-                let mut sent = 0;
-                while more(end, &mut sent, per_client) {
-                    let request = proto::SolveRequest {
-                        problem: Some(problem.clone()),
-                    };
-                    let ok = client.solve(request).await.is_ok();
-                    let counter = if ok { &solves } else { &failed };
-                    counter.fetch_add(1, Ordering::Relaxed);
-                }
-            })
-        })
-        .collect();
-    for t in tasks {
-        let _ = t.await;
-    }
-    Round {
-        solves: solves.load(Ordering::Relaxed),
-        failed: failed.load(Ordering::Relaxed),
-        cpu: Cpu::since(a.pid, before),
-        wall: started.elapsed(),
-    }
+                tally.record(client.solve(request).await.is_ok());
+            }
+        }
+    })
+    .await
 }
 
 fn report(name: &str, r: &Round) -> (f64, f64) {
