@@ -25,7 +25,7 @@ import threading
 import time
 from pathlib import Path
 from types import ModuleType
-from typing import Any, Iterator, List, Tuple
+from typing import Any, Iterator, List, Optional, Tuple
 
 import pytest
 from conftest import REPO_ROOT, BackgroundSolve, ServiceProcess, busy_problem, free_port, running_service
@@ -84,6 +84,37 @@ def _stub(stubs: Tuple[ModuleType, ModuleType], target: str) -> Tuple[Any, Any]:
     return channel, pb2_grpc.TrajectoryOptimizerStub(channel)
 
 
+def _details(error: Any, kind: str) -> List[Any]:
+    """The ``google.rpc`` details of type ``kind`` (``"BadRequest"``, ``"RetryInfo"``) of a failed call."""
+    status = rpc_status.from_call(error)
+    assert status is not None, error
+    message_type = getattr(error_details_pb2, kind)
+    found = []
+    for detail in status.details:
+        if detail.Is(message_type.DESCRIPTOR):
+            message = message_type()
+            detail.Unpack(message)
+            found.append(message)
+    return found
+
+
+def _long_problem(pb2: ModuleType, time_limit_ms: Optional[int]) -> Any:
+    """``busy_problem`` as a proto message: about ``time_limit_ms`` of work
+    (``None``: no time limit of its own, the call's deadline or the
+    server's default)."""
+    doc = busy_problem(time_limit_ms or 0)
+    problem = pb2.Problem(
+        horizon=doc["horizon"],
+        dt=doc["dt"],
+        solver=pb2.SolverOptions(tolerance=0.0, max_iterations=10000, time_limit_ms=time_limit_ms),
+        output=pb2.OutputOptions(gains=False, trace=False),
+    )
+    problem.obstacles.SetInParent()
+    for o in doc["obstacles"]:
+        problem.obstacles.items.add(center=o["center"], weight=o["weight"])
+    return problem
+
+
 def test_solve_of_an_empty_problem_is_posts(stubs: Tuple[ModuleType, ModuleType], grpc_service: GrpcService) -> None:
     pb2, _ = stubs
     channel, stub = _stub(stubs, grpc_service.target)
@@ -133,14 +164,7 @@ def test_invalid_input_names_each_field(stubs: Tuple[ModuleType, ModuleType], gr
         stub.Solve(pb2.SolveRequest(problem=problem), timeout=30)
     error = raised.value
     assert error.code() == grpc.StatusCode.INVALID_ARGUMENT
-    status = rpc_status.from_call(error)
-    assert status is not None
-    violations = []
-    for detail in status.details:
-        if detail.Is(error_details_pb2.BadRequest.DESCRIPTOR):
-            bad = error_details_pb2.BadRequest()
-            detail.Unpack(bad)
-            violations.extend((v.field, v.description) for v in bad.field_violations)
+    violations = [(v.field, v.description) for bad in _details(error, "BadRequest") for v in bad.field_violations]
     fields = [field for field, _ in violations]
     assert fields == ["model.mass", "dt", "initial_state"], violations
     # The same words as the HTTP answer's.
@@ -160,15 +184,8 @@ def test_overload_is_resource_exhausted_with_retry_info(
             stub.Solve(pb2.SolveRequest(problem=pb2.Problem()), timeout=10)
         error = raised.value
         assert error.code() == grpc.StatusCode.RESOURCE_EXHAUSTED
-        status = rpc_status.from_call(error)
-        assert status is not None
-        delays = []
-        for detail in status.details:
-            if detail.Is(error_details_pb2.RetryInfo.DESCRIPTOR):
-                info = error_details_pb2.RetryInfo()
-                detail.Unpack(info)
-                delays.append(info.retry_delay.seconds)
-        assert delays and delays[0] >= 1, status
+        delays = [info.retry_delay.seconds for info in _details(error, "RetryInfo")]
+        assert delays and delays[0] >= 1, error
         for b in busy:
             b.result()
 
@@ -177,16 +194,8 @@ def test_a_short_deadline_returns_the_best_trajectory_as_time_limit(
     stubs: Tuple[ModuleType, ModuleType], grpc_service: GrpcService
 ) -> None:
     pb2, _ = stubs
-    doc = busy_problem(60_000)
-    problem = pb2.Problem(
-        horizon=doc["horizon"],
-        dt=doc["dt"],
-        solver=pb2.SolverOptions(tolerance=0.0, max_iterations=10000),
-        output=pb2.OutputOptions(gains=False, trace=False),
-    )
-    problem.obstacles.SetInParent()
-    for o in doc["obstacles"]:
-        problem.obstacles.items.add(center=o["center"], weight=o["weight"])
+    # No time limit of its own: the deadline is the only budget.
+    problem = _long_problem(pb2, None)
     channel, stub = _stub(stubs, grpc_service.target)
     started = time.monotonic()
     with channel:
@@ -197,7 +206,7 @@ def test_a_short_deadline_returns_the_best_trajectory_as_time_limit(
     assert r.status == pb2.SOLVE_STATUS_TIME_LIMIT
     assert r.iterations >= 1
     assert took < 1.5
-    assert len(r.states) == (doc["horizon"] + 1) * 6
+    assert len(r.states) == (problem.horizon + 1) * 6
 
 
 def test_the_example_client_runs(grpc_service: GrpcService) -> None:
@@ -292,21 +301,6 @@ def _solves_total(url: str, status: str, transport: str) -> float:
         if line.startswith(series):
             return float(line[len(series) :])
     return 0.0
-
-
-def _long_problem(pb2: ModuleType, time_limit_ms: int) -> Any:
-    """``busy_problem`` as a proto message: about ``time_limit_ms`` of work."""
-    doc = busy_problem(time_limit_ms)
-    problem = pb2.Problem(
-        horizon=doc["horizon"],
-        dt=doc["dt"],
-        solver=pb2.SolverOptions(tolerance=0.0, max_iterations=10000, time_limit_ms=time_limit_ms),
-        output=pb2.OutputOptions(gains=False, trace=False),
-    )
-    problem.obstacles.SetInParent()
-    for o in doc["obstacles"]:
-        problem.obstacles.items.add(center=o["center"], weight=o["weight"])
-    return problem
 
 
 def test_a_caller_that_cancels_frees_the_worker(
