@@ -3,51 +3,25 @@
 //! progress stream, every error class with its standard details, deadlines,
 //! cancellation, health through a drain, reflection.
 
-use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
 use ilqr_service::grpc::proto::trajectory_optimizer_client::TrajectoryOptimizerClient;
 use ilqr_service::grpc::proto::{self, solve_event::Event};
 use ilqr_service::grpc::status::field_path;
-use ilqr_service::server::{AppState, Config, run_with_grpc};
+use ilqr_service::server::Config;
 use serde_json::{Value, json};
 use tonic::transport::Channel;
 use tonic::{Code, Request};
 use tonic_types::StatusExt;
 
+use crate::common::Server;
+
 type Client = TrajectoryOptimizerClient<Channel>;
 
-struct Service {
-    http: SocketAddr,
-    grpc: SocketAddr,
-    stop: Option<tokio::sync::oneshot::Sender<()>>,
-    task: tokio::task::JoinHandle<std::io::Result<()>>,
-}
-
-impl Service {
-    async fn start(config: Config) -> Self {
-        let http = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let grpc = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let (http_addr, grpc_addr) = (http.local_addr().unwrap(), grpc.local_addr().unwrap());
-        let state = AppState::new(config).unwrap();
-        let (stop, stopped) = tokio::sync::oneshot::channel();
-        let task = tokio::spawn(run_with_grpc(http, Some(grpc), state, async {
-            let _ = stopped.await;
-        }));
-        Self {
-            http: http_addr,
-            grpc: grpc_addr,
-            stop: Some(stop),
-            task,
-        }
-    }
-
-    async fn default() -> Self {
-        Self::start(Config::default()).await
-    }
-
+impl Server {
     async fn channel(&self) -> Channel {
-        tonic::transport::Endpoint::from_shared(format!("http://{}", self.grpc))
+        let grpc = self.grpc.expect("started with gRPC");
+        tonic::transport::Endpoint::from_shared(format!("http://{grpc}"))
             .unwrap()
             .connect()
             .await
@@ -58,29 +32,12 @@ impl Service {
         Client::new(self.channel().await)
     }
 
-    fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.http)
+    async fn post_json(&self, path: &str, body: &Value) -> Value {
+        self.post_to(path, body).await.json().await.unwrap()
     }
 
-    async fn post(&self, path: &str, body: &Value) -> Value {
-        reqwest::Client::new()
-            .post(self.url(path))
-            .json(body)
-            .send()
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap()
-    }
-
-    async fn get(&self, path: &str) -> Value {
-        reqwest::get(self.url(path))
-            .await
-            .unwrap()
-            .json()
-            .await
-            .unwrap()
+    async fn get_json(&self, path: &str) -> Value {
+        self.get(path).await.json().await.unwrap()
     }
 }
 
@@ -201,9 +158,9 @@ fn assert_same_row(g: &proto::TraceEntry, h: &Value) {
 /// `POST /solve {}` and as the solver called directly.
 #[tokio::test]
 async fn an_empty_problem_solves_as_over_http_and_in_process() {
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let mut client = s.client().await;
-    let http = s.post("/solve", &json!({})).await;
+    let http = s.post_json("/solve", &json!({})).await;
     let direct = ilqr_service::solve::solve(
         &ilqr_service::problem::ProblemSpec::default(),
         None,
@@ -239,7 +196,7 @@ async fn an_empty_problem_solves_as_over_http_and_in_process() {
 /// guess solves as its JSON document does over HTTP.
 #[tokio::test]
 async fn a_unicycle_problem_solves_as_its_json_does() {
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let guess: Vec<f64> = (0..40).flat_map(|k| [0.5, 0.01 * f64::from(k)]).collect();
     let problem = proto::Problem {
         model: Some(proto::Model {
@@ -279,14 +236,14 @@ async fn a_unicycle_problem_solves_as_its_json_does() {
     assert_eq!((r.state_dim, r.control_dim), (3, 2));
     assert_eq!(r.states.len(), 41 * 3);
     assert_eq!(r.gains.as_ref().unwrap().feedback.len(), 40 * 2 * 3);
-    assert_same_result(&r, &s.post("/solve", &doc).await);
+    assert_same_result(&r, &s.post_json("/solve", &doc).await);
 }
 
 /// `SolveStream`: one iteration event per iteration, the rows of the
 /// result's trace, then the result, which is `Solve`'s answer.
 #[tokio::test]
 async fn a_stream_gives_each_iteration_then_the_result() {
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let mut client = s.client().await;
     let mut stream = client
         .solve_stream(proto::SolveRequest { problem: None })
@@ -339,8 +296,8 @@ fn violations(status: &tonic::Status) -> Vec<(String, String)> {
 
 /// `(field, detail)` of each error of an HTTP 422, the pointers written as
 /// paths.
-async fn http_errors(s: &Service, doc: &Value) -> Vec<(String, String)> {
-    let problem = s.post("/solve", doc).await;
+async fn http_errors(s: &Server, doc: &Value) -> Vec<(String, String)> {
+    let problem = s.post_json("/solve", doc).await;
     assert_eq!(problem["status"], 422, "{problem}");
     problem["errors"]
         .as_array()
@@ -363,7 +320,7 @@ async fn http_errors(s: &Service, doc: &Value) -> Vec<(String, String)> {
 /// does not have). The caller's request id comes back in RequestInfo.
 #[tokio::test]
 async fn invalid_problems_list_every_error_as_a_field_violation() {
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let mut client = s.client().await;
 
     // The quadrotor: wrong lengths, values out of range, an unknown
@@ -538,13 +495,8 @@ async fn invalid_problems_list_every_error_as_a_field_violation() {
 
 /// `solves_total` of `status` for the gRPC transport, as `/metrics` says
 /// (the counter is the process's, shared by the tests running at once).
-async fn solves_total(s: &Service, status: &str) -> u64 {
-    let text = reqwest::get(s.url("/metrics"))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+async fn solves_total(s: &Server, status: &str) -> u64 {
+    let text = s.get("/metrics").await.text().await.unwrap();
     let series = format!("solves_total{{status=\"{status}\",transport=\"grpc\"}} ");
     text.lines()
         .find_map(|l| l.strip_prefix(series.as_str()))
@@ -557,7 +509,7 @@ async fn solves_total(s: &Service, status: &str) -> u64 {
 /// admitted before any solve ended gave an estimate), then a full queue.
 #[tokio::test]
 async fn overload_is_resource_exhausted_with_retry_info() {
-    let s = Service::start(one_worker(1)).await;
+    let s = Server::with_grpc(one_worker(1)).await;
     let channel = s.channel().await;
     let running = tokio::spawn({
         let mut client = Client::new(channel.clone());
@@ -616,7 +568,7 @@ async fn overload_is_resource_exhausted_with_retry_info() {
 /// TIME_LIMIT, in time, on `Solve` and on `SolveStream`.
 #[tokio::test]
 async fn a_short_deadline_answers_time_limit_before_it() {
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let mut client = s.client().await;
     let deadline = Duration::from_millis(700);
     let mut request = Request::new(solve_request(slow(20_000)));
@@ -649,7 +601,7 @@ async fn a_short_deadline_answers_time_limit_before_it() {
 /// before the first one's budget, and the solve counts as cancelled.
 #[tokio::test]
 async fn a_caller_that_cancels_frees_the_worker() {
-    let s = Service::start(one_worker(4)).await;
+    let s = Server::with_grpc(one_worker(4)).await;
     let mut client = s.client().await;
     let before = solves_total(&s, "cancelled").await;
 
@@ -705,7 +657,7 @@ async fn a_caller_that_cancels_frees_the_worker() {
 async fn a_drain_turns_health_not_serving_and_finishes_calls_in_flight() {
     use tonic_health::pb::health_check_response::ServingStatus;
     use tonic_health::pb::{HealthCheckRequest, health_client::HealthClient};
-    let mut s = Service::default().await;
+    let mut s = Server::with_grpc(Config::default()).await;
     let channel = s.channel().await;
     let mut health = HealthClient::new(channel.clone());
     let check = |health: &mut HealthClient<Channel>, service: &str| {
@@ -762,7 +714,7 @@ async fn reflection_lists_and_describes_the_services() {
     use tonic_reflection::pb::v1;
     use tonic_reflection::pb::v1::server_reflection_request::MessageRequest;
     use tonic_reflection::pb::v1::server_reflection_response::MessageResponse;
-    let s = Service::default().await;
+    let s = Server::with_grpc(Config::default()).await;
     let channel = s.channel().await;
     let mut reflection = v1::server_reflection_client::ServerReflectionClient::new(channel.clone());
     let ask = |request: MessageRequest| v1::ServerReflectionRequest {
@@ -879,7 +831,7 @@ fn assert_same_problem(g: &proto::Problem, h: &Value) {
 /// model is NOT_FOUND; the default problem solves as over HTTP.
 #[tokio::test]
 async fn default_problems_and_models_agree_with_http() {
-    let s = Service::start(Config {
+    let s = Server::with_grpc(Config {
         default_time_limit_ms: 7000,
         ..Config::default()
     })
@@ -890,7 +842,7 @@ async fn default_problems_and_models_agree_with_http() {
         .await
         .unwrap()
         .into_inner();
-    let http_seed = s.get("/problems/default").await;
+    let http_seed = s.get_json("/problems/default").await;
     assert_same_problem(&seed, &http_seed);
     assert_eq!(seed.solver.unwrap().time_limit_ms, Some(7000));
     let unicycle = client
@@ -900,7 +852,10 @@ async fn default_problems_and_models_agree_with_http() {
         .await
         .unwrap()
         .into_inner();
-    assert_same_problem(&unicycle, &s.get("/problems/default?model=unicycle").await);
+    assert_same_problem(
+        &unicycle,
+        &s.get_json("/problems/default?model=unicycle").await,
+    );
     let unknown = client
         .get_default_problem(proto::GetDefaultProblemRequest {
             model: Some("blimp".into()),
@@ -922,7 +877,7 @@ async fn default_problems_and_models_agree_with_http() {
         .unwrap()
         .into_inner()
         .models;
-    let http_models = s.get("/models").await;
+    let http_models = s.get_json("/models").await;
     let http_models = http_models["models"].as_array().unwrap();
     assert_eq!(models.len(), http_models.len());
     for (g, h) in models.iter().zip(http_models) {
@@ -959,5 +914,5 @@ async fn default_problems_and_models_agree_with_http() {
         .into_inner()
         .result
         .unwrap();
-    assert_same_result(&r, &s.post("/solve", &http_seed).await);
+    assert_same_result(&r, &s.post_json("/solve", &http_seed).await);
 }

@@ -5,57 +5,15 @@
 use std::net::SocketAddr;
 use std::time::{Duration, Instant};
 
-use ilqr_service::server::{AppState, Config, run};
+use ilqr_service::server::Config;
+
+use crate::common::{Server, slow};
 use reqwest::StatusCode;
 use reqwest::header::HeaderValue;
 use serde_json::{Value, json};
-use tokio::net::TcpListener;
-use tokio::sync::oneshot;
 use tokio::task::JoinHandle;
 
-/// A solve that runs until its time limit: a long horizon, no tolerance,
-/// and 100 distant obstacles that make every iteration slow (~0.1 s) without
-/// shaping the solution, so it neither converges nor stalls (`no_progress`)
-/// within the few seconds these tests allow.
-fn slow(time_limit_ms: u64) -> Value {
-    let obstacles: Vec<Value> = (0..100)
-        .map(|j| json!({"center": [1000.0 + f64::from(j), 1000.0], "weight": 1.0}))
-        .collect();
-    json!({"horizon": 10000, "dt": 0.0005, "obstacles": obstacles,
-           "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": time_limit_ms},
-           "output": {"gains": false, "trace": false}})
-}
-
-struct Server {
-    addr: SocketAddr,
-    stop: Option<oneshot::Sender<()>>,
-    task: JoinHandle<std::io::Result<()>>,
-}
-
 impl Server {
-    async fn start(config: Config) -> Self {
-        let listener = TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let state = AppState::new(config).unwrap();
-        let (tx, rx) = oneshot::channel();
-        let task = tokio::spawn(run(listener, state, async {
-            let _ = rx.await;
-        }));
-        Self {
-            addr,
-            stop: Some(tx),
-            task,
-        }
-    }
-
-    async fn default() -> Self {
-        Self::start(Config::default()).await
-    }
-
-    fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.addr)
-    }
-
     /// POST `body` to /solve in a task of its own (a client that waits
     /// while the test goes on).
     fn spawn_post(&self, body: Value) -> JoinHandle<reqwest::Response> {
@@ -88,10 +46,6 @@ impl Server {
             .send()
             .await
             .unwrap()
-    }
-
-    async fn get(&self, path: &str) -> reqwest::Response {
-        reqwest::get(self.url(path)).await.unwrap()
     }
 
     /// GET `path` with these headers (a name may repeat).

@@ -9,11 +9,12 @@ use std::sync::atomic::AtomicBool;
 use ilqr::{DiscreteDynamics, Euler, Model, Quadrotor2D, Rk4, Unicycle};
 use ilqr_service::models::MODELS;
 use ilqr_service::problem::{Integrator, Limits, ParseError, ProblemSpec, parse};
-use ilqr_service::server::{AppState, Config, run};
 use ilqr_service::solve::{SolveResult, SolveStatus, solve};
 use nalgebra::SVector;
 use reqwest::StatusCode;
 use serde_json::{Value, json};
+
+use crate::common::Server;
 
 /// Parse, validate and solve a document.
 fn solved(doc: &Value) -> SolveResult {
@@ -327,37 +328,9 @@ fn a_result_warm_starts_a_solve_of_its_own_problem() {
     );
 }
 
-/// The service on a real socket, for the routes.
-struct Service {
-    addr: std::net::SocketAddr,
-    _stop: tokio::sync::oneshot::Sender<()>,
-}
-
-impl Service {
-    async fn start() -> Self {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let state = AppState::new(Config::default()).unwrap();
-        let (stop, stopped) = tokio::sync::oneshot::channel();
-        tokio::spawn(run(listener, state, async {
-            let _ = stopped.await;
-        }));
-        Self { addr, _stop: stop }
-    }
-
-    async fn get(&self, path: &str) -> reqwest::Response {
-        reqwest::get(format!("http://{}{path}", self.addr))
-            .await
-            .unwrap()
-    }
-
+impl Server {
     async fn solve(&self, body: &Value) -> Value {
-        let res = reqwest::Client::new()
-            .post(format!("http://{}/solve", self.addr))
-            .json(body)
-            .send()
-            .await
-            .unwrap();
+        let res = self.post_to("/solve", body).await;
         assert_eq!(res.status(), StatusCode::OK);
         res.json().await.unwrap()
     }
@@ -370,7 +343,7 @@ impl Service {
 /// unknown parameter a 400, both problem documents.
 #[tokio::test]
 async fn the_models_and_their_default_problems_are_served() {
-    let s = Service::start().await;
+    let s = Server::default().await;
     let listed: Value = s.get("/models").await.json().await.unwrap();
     let listed = listed["models"].as_array().unwrap();
     assert_eq!(listed.len(), MODELS.len());

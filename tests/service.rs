@@ -11,6 +11,7 @@
 //! openapi`) runs that and nothing else.
 
 mod cli;
+mod common;
 mod grpc;
 mod http;
 mod models;

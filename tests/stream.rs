@@ -6,40 +6,11 @@
 
 use std::time::{Duration, Instant};
 
-use ilqr_service::server::{AppState, Config, run};
+use ilqr_service::server::Config;
+
+use crate::common::{Server, slow};
 use reqwest::StatusCode;
 use serde_json::{Value, json};
-
-struct Service {
-    addr: std::net::SocketAddr,
-    _stop: tokio::sync::oneshot::Sender<()>,
-}
-
-impl Service {
-    async fn start(config: Config) -> Self {
-        let listener = tokio::net::TcpListener::bind("127.0.0.1:0").await.unwrap();
-        let addr = listener.local_addr().unwrap();
-        let state = AppState::new(config).unwrap();
-        let (stop, stopped) = tokio::sync::oneshot::channel();
-        tokio::spawn(run(listener, state, async {
-            let _ = stopped.await;
-        }));
-        Self { addr, _stop: stop }
-    }
-
-    fn url(&self, path: &str) -> String {
-        format!("http://{}{path}", self.addr)
-    }
-
-    async fn post(&self, path: &str, body: &Value) -> reqwest::Response {
-        reqwest::Client::new()
-            .post(self.url(path))
-            .json(body)
-            .send()
-            .await
-            .unwrap()
-    }
-}
 
 /// The events of a whole stream, as `(event, data)`.
 async fn events(res: reqwest::Response) -> Vec<(String, Value)> {
@@ -71,12 +42,12 @@ fn parse(text: &str) -> Vec<(String, Value)> {
 /// (the same iterations and cost; solving is deterministic).
 #[tokio::test]
 async fn a_stream_gives_each_iteration_then_the_result() {
-    let s = Service::start(Config::default()).await;
+    let s = Server::start(Config::default()).await;
     for doc in [
         json!({}),
         json!({"model": {"type": "unicycle"}, "integrator": "rk4", "output": {"trace": false}}),
     ] {
-        let got = events(s.post("/solve/stream", &doc).await).await;
+        let got = events(s.post_to("/solve/stream", &doc).await).await;
         let (last, rest) = got.split_last().unwrap();
         assert_eq!(last.0, "result", "{doc}");
         let result = &last.1;
@@ -90,7 +61,7 @@ async fn a_stream_gives_each_iteration_then_the_result() {
                 assert_eq!(row, &trace[k], "{doc}: row {k}");
             }
         }
-        let plain: Value = s.post("/solve", &doc).await.json().await.unwrap();
+        let plain: Value = s.post_to("/solve", &doc).await.json().await.unwrap();
         for member in ["iterations", "cost", "states", "controls", "status"] {
             assert_eq!(plain[member], result[member], "{member} of {doc}");
         }
@@ -101,9 +72,9 @@ async fn a_stream_gives_each_iteration_then_the_result() {
 /// answers it: a problem document with its status.
 #[tokio::test]
 async fn an_invalid_problem_is_refused_before_the_stream() {
-    let s = Service::start(Config::default()).await;
+    let s = Server::start(Config::default()).await;
     let res = s
-        .post(
+        .post_to(
             "/solve/stream",
             &json!({"model": {"type": "unicycle"}, "initial_state": [0, 0]}),
         )
@@ -114,24 +85,13 @@ async fn an_invalid_problem_is_refused_before_the_stream() {
     assert_eq!(p["errors"][0]["pointer"], "/initial_state");
 }
 
-/// A solve that runs until its budget: long horizon, no tolerance, 100
-/// far obstacles (about 0.1 s an iteration).
-fn slow(time_limit_ms: u64) -> Value {
-    let obstacles: Vec<Value> = (0..100)
-        .map(|j| json!({"center": [1000.0 + f64::from(j), 1000.0], "weight": 1.0}))
-        .collect();
-    json!({"horizon": 10000, "dt": 0.0005, "obstacles": obstacles,
-           "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": time_limit_ms},
-           "output": {"gains": false, "trace": false}})
-}
-
 /// Behind a long solve on the one worker (before any solve has ended, so
 /// admission has no estimate to refuse it by), a stream whose budget runs
 /// out in the queue ends with an `error` event holding the problem
 /// document `/solve` would answer, and no iteration.
 #[tokio::test]
 async fn a_solve_that_expires_in_the_queue_ends_the_stream_with_an_error_event() {
-    let s = Service::start(Config {
+    let s = Server::start(Config {
         workers: std::num::NonZeroUsize::new(1),
         ..Config::default()
     })
@@ -147,7 +107,7 @@ async fn a_solve_that_expires_in_the_queue_ends_the_stream_with_an_error_event()
     });
     tokio::time::sleep(Duration::from_millis(300)).await;
     let got = events(
-        s.post("/solve/stream", &json!({"solver": {"time_limit_ms": 200}}))
+        s.post_to("/solve/stream", &json!({"solver": {"time_limit_ms": 200}}))
             .await,
     )
     .await;
@@ -163,13 +123,13 @@ async fn a_solve_that_expires_in_the_queue_ends_the_stream_with_an_error_event()
 /// solve: the worker is free again long before the solve's budget.
 #[tokio::test]
 async fn closing_the_stream_cancels_the_solve() {
-    let s = Service::start(Config {
+    let s = Server::start(Config {
         workers: std::num::NonZeroUsize::new(1),
         ..Config::default()
     })
     .await;
     let before = cancelled(&s).await;
-    let mut res = s.post("/solve/stream", &slow(20_000)).await;
+    let mut res = s.post_to("/solve/stream", &slow(20_000)).await;
     assert_eq!(res.status(), StatusCode::OK);
     // The first iteration's event arrives, then the client hangs up.
     let mut seen = String::new();
@@ -182,7 +142,7 @@ async fn closing_the_stream_cancels_the_solve() {
     // The one worker takes the next solve as soon as the cancelled one
     // stops: well within the 20 s budget of the first.
     let next: Value = s
-        .post(
+        .post_to(
             "/solve",
             &json!({"output": {"gains": false, "trace": false}}),
         )
@@ -202,13 +162,8 @@ async fn closing_the_stream_cancels_the_solve() {
 }
 
 /// `solves_total{status="cancelled",transport="http"}` as `/metrics` says.
-async fn cancelled(s: &Service) -> u64 {
-    let text = reqwest::get(s.url("/metrics"))
-        .await
-        .unwrap()
-        .text()
-        .await
-        .unwrap();
+async fn cancelled(s: &Server) -> u64 {
+    let text = s.get("/metrics").await.text().await.unwrap();
     text.lines()
         .find_map(|l| l.strip_prefix(r#"solves_total{status="cancelled",transport="http"} "#))
         .and_then(|n| n.trim().parse().ok())
