@@ -495,24 +495,8 @@ pub fn model_message(m: &ModelInfo) -> proto::ModelInfo {
     proto::ModelInfo {
         r#type: m.kind.into(),
         description: m.description.into(),
-        state: m
-            .state
-            .iter()
-            .map(|q| proto::Quantity {
-                name: q.name.into(),
-                unit: q.unit.into(),
-                description: q.description.into(),
-            })
-            .collect(),
-        control: m
-            .control
-            .iter()
-            .map(|q| proto::Quantity {
-                name: q.name.into(),
-                unit: q.unit.into(),
-                description: q.description.into(),
-            })
-            .collect(),
+        state: m.state.iter().map(quantity_message).collect(),
+        control: m.control.iter().map(quantity_message).collect(),
         parameters: m
             .parameters
             .iter()
@@ -527,6 +511,15 @@ pub fn model_message(m: &ModelInfo) -> proto::ModelInfo {
             .collect(),
         position: m.position.iter().map(|&i| u32_of(i)).collect(),
         default_problem: Some(problem_message(&m.default_problem)),
+    }
+}
+
+/// A state or control component as a message.
+fn quantity_message(q: &models::QuantityInfo) -> proto::Quantity {
+    proto::Quantity {
+        name: q.name.into(),
+        unit: q.unit.into(),
+        description: q.description.into(),
     }
 }
 
