@@ -655,6 +655,41 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
             r.closest_approach[next]
         );
     }
+    if let Some(c) = &r.constraint_report {
+        s += &format!(
+            "constraints      violation {:.2e} after {} outer iterations\n",
+            r.constraint_violation, c.outer_iterations
+        );
+        let steps = |n: usize| if n == 1 { "step" } else { "steps" };
+        for (name, status) in [
+            ("control bounds", &c.control),
+            ("state bounds", &c.state),
+            ("goal tolerance", &c.goal),
+        ] {
+            if let Some(t) = status {
+                s += &format!(
+                    "{:<17}violation {:.2e}, active at {} {}\n",
+                    name,
+                    t.max_violation,
+                    t.active_steps,
+                    steps(t.active_steps)
+                );
+            }
+        }
+        for o in &c.obstacles {
+            s += &format!(
+                "{:<17}violation {:.2e}, active at {} {}, smallest distance {:.4} m\n",
+                format!("hard obstacle {}", o.obstacle),
+                o.max_violation,
+                o.active_steps,
+                steps(o.active_steps),
+                o.smallest_distance
+            );
+        }
+    }
+    for w in &r.warnings {
+        s += &format!("warning          {}: {}\n", w.code.as_str(), w.message);
+    }
     if let Some(k) = r.convexified_after_iteration {
         s += &format!(
             "convexified      after iteration {k} (no progress with the exact Hessian up to μ = 1e20); {}\n",

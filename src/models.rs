@@ -29,10 +29,10 @@ pub static MODELS: [&dyn ServedModel; 2] = [
         state_weights: &[1.0; 6],
         control_weights: &[0.1; 2],
         terminal_weights: &[50000.0; 6],
-        obstacles: &[Obstacle {
-            center: [4.5, 4.5],
-            weight: crate::problem::SEED_OBSTACLE_WEIGHT,
-        }],
+        obstacles: &[Obstacle::point(
+            [4.5, 4.5],
+            crate::problem::SEED_OBSTACLE_WEIGHT,
+        )],
     }),
     &Served::<Unicycle, 3, 2>::new(DefaultProblem {
         // From the origin heading east to (4, 0) heading east, around an
@@ -46,10 +46,7 @@ pub static MODELS: [&dyn ServedModel; 2] = [
         state_weights: &[0.0; 3],
         control_weights: &[1.0; 2],
         terminal_weights: &[1000.0; 3],
-        obstacles: &[Obstacle {
-            center: [2.0, 0.3],
-            weight: 5.0,
-        }],
+        obstacles: &[Obstacle::point([2.0, 0.3], 5.0)],
     }),
 ];
 
@@ -114,6 +111,9 @@ pub trait ServedModel: Send + Sync {
     fn position(&self) -> (usize, usize);
     /// Its default problem.
     fn defaults(&self) -> &DefaultProblem;
+    /// The least each control can physically be, if the hardware has a
+    /// floor ([`Model::CONTROL_MINIMUM`]).
+    fn control_minimum(&self) -> Option<&'static [f64]>;
     /// The controls that hold it at rest for the given parameter values
     /// (one per [`ServedModel::parameters`] entry): the default initial
     /// guess.
@@ -177,6 +177,10 @@ where
 
     fn defaults(&self) -> &DefaultProblem {
         &self.defaults
+    }
+
+    fn control_minimum(&self) -> Option<&'static [f64]> {
+        const { M::CONTROL_MINIMUM.as_ref() }.map(|m| m.as_slice())
     }
 
     fn rest_controls(&self, parameters: &[f64]) -> Vec<f64> {

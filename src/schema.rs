@@ -19,8 +19,8 @@ use utoipa::openapi::{KnownFormat, SchemaFormat};
 
 use crate::models::{DEFAULT_MODEL, MODELS, ServedModel};
 use crate::problem::{
-    DEFAULT_MAX_HORIZON, MAX_CONTROL, MAX_DT, MAX_OBSTACLES, MAX_STATE, MAX_WEIGHT, Obstacle,
-    OutputSpec, SolverSpec, wire::WeightsDoc,
+    ConstraintsSpec, DEFAULT_MAX_HORIZON, MAX_CONTROL, MAX_DT, MAX_OBSTACLES, MAX_STATE,
+    MAX_WEIGHT, Obstacle, OutputSpec, SolverSpec, wire::WeightsDoc,
 };
 use ilqr::Quantity;
 
@@ -53,6 +53,57 @@ fn components(names: &[Quantity]) -> String {
 fn values(xs: &[f64]) -> String {
     let list: Vec<String> = xs.iter().map(|x| x.to_string()).collect();
     format!("[{}]", list.join(", "))
+}
+
+/// `obstacles[].size`.
+pub fn obstacle_size() -> Schema {
+    fixed(2, number_in(0.0, MAX_STATE))
+        .description(Some(
+            "A rectangle's [width, height] in m, each from 0 to 1e6; required for a rectangle, \
+             and only for one. Width is along the rectangle's own x axis (turned by angle).",
+        ))
+        .build()
+        .into()
+}
+
+/// `constraints`.
+pub fn constraints() -> Schema {
+    object_or_null::<ConstraintsSpec>(
+        "Hard constraints: control bounds (held exactly), state bounds (at every state after \
+         the initial one) and a goal tolerance (at the final state); none by default.",
+    )
+}
+
+/// `constraints.goal_tolerance`.
+pub fn goal_tolerance() -> Schema {
+    vector(
+        0.0,
+        MAX_STATE,
+        format!(
+            "|x_N − goal_state| at most this, one entry per state component, each from 0 to \
+             1e6 in its unit; 0 makes the component an equality. {}.",
+            per_model(|m| components(m.state()))
+        ),
+    )
+}
+
+/// `constraints.control.lower` and the like: numbers or null.
+pub fn bound_list() -> Schema {
+    ArrayBuilder::new()
+        .items(
+            ObjectBuilder::new()
+                .schema_type(SchemaType::from_iter([Type::Number, Type::Null]))
+                .minimum(Some(-MAX_CONTROL))
+                .maximum(Some(MAX_CONTROL)),
+        )
+        .description(Some(format!(
+            "One bound per component, in its unit, or null for none; each of magnitude at \
+             most 1e6 for a state and 1e12 for a control. Controls: {}. States: {}.",
+            per_model(|m| components(m.control())),
+            per_model(|m| components(m.state()))
+        )))
+        .build()
+        .into()
 }
 
 /// Per model: `name: <what>`, joined by `; `. Plain text: Swagger UI
@@ -109,7 +160,8 @@ pub fn obstacles() -> Schema {
         .items(Ref::from_schema_name(Obstacle::name()))
         .max_items(Some(MAX_OBSTACLES))
         .description(Some(format!(
-            "Soft obstacles, at most 100. Defaults: {}.",
+            "Obstacles (points, circles, rectangles; soft, hard or both), at most 100. \
+             Defaults: {}.",
             per_model(|m| {
                 let list: Vec<String> = m
                     .defaults()

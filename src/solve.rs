@@ -17,14 +17,15 @@ use std::sync::atomic::AtomicBool;
 use std::time::Duration;
 
 use ilqr::{
-    ControlEffort, Cost, DiscreteDynamics, Euler, ExpObstacle, Model, Objective, Options, Problem,
-    Rk4, SolveError, Solver, StateTracking, TerminalTracking,
+    Clearance, Constraint, Constraints, ControlBounds, ControlEffort, Cost, DiscreteDynamics,
+    Euler, ExpObstacle, GoalTolerance, Model, Objective, Options, Problem, Region, Rk4, Shape,
+    ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking,
 };
 use nalgebra::{SVector, Vector2};
 use serde::{Deserialize, Serialize};
 use utoipa::ToSchema;
 
-use crate::problem::{FieldError, Integrator, Method, ProblemSpec};
+use crate::problem::{FieldError, Integrator, Method, Obstacle, ObstacleShape, ProblemSpec};
 use crate::schema;
 
 /// How a solve ended. Every status is a successful answer carrying the best
@@ -40,7 +41,9 @@ use crate::schema;
 /// * `cancelled`: the client left, or the service was shutting down;
 /// * `no_progress`: no step could reduce the cost at any regularisation,
 ///   with the exact Hessian nor (with obstacles, or with `ddp`) the convex
-///   model tried after it.
+///   model tried after it;
+/// * `infeasible`: with hard constraints, their violation could not be
+///   brought under `solver.constraint_tolerance`.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
@@ -62,6 +65,13 @@ pub enum SolveStatus {
     /// tried after it; or the exact Hessian could not move from a point
     /// where the convex model stopped (see `convex_model_at_end`).
     NoProgress,
+    /// With hard constraints: their violation could not be brought under
+    /// `solver.constraint_tolerance` (the penalty at its largest with the
+    /// violation no longer falling, or 30 outer iterations spent): the
+    /// constraints contradict each other or the dynamics, or the solver
+    /// found no feasible route from its start. The result is the least
+    /// violating trajectory found; `constraint_violation` says by how much.
+    Infeasible,
 }
 
 impl SolveStatus {
@@ -73,6 +83,7 @@ impl SolveStatus {
             Self::TimeLimit => "time_limit",
             Self::Cancelled => "cancelled",
             Self::NoProgress => "no_progress",
+            Self::Infeasible => "infeasible",
         }
     }
 }
@@ -85,6 +96,7 @@ impl From<ilqr::Status> for SolveStatus {
             ilqr::Status::TimeLimit => Self::TimeLimit,
             ilqr::Status::Cancelled => Self::Cancelled,
             ilqr::Status::NoProgress => Self::NoProgress,
+            ilqr::Status::Infeasible => Self::Infeasible,
         }
     }
 }
@@ -159,11 +171,122 @@ pub struct SolveResult {
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false)]
     pub convex_model_at_end: Option<bool>,
+    /// The largest violation of any hard constraint (bounds, goal
+    /// tolerance, obstacle clearances), each in its own unit (m, rad, N,
+    /// …); 0 without hard constraints. At most
+    /// `solver.constraint_tolerance` when `status` is `converged`.
+    #[schema(minimum = 0.0)]
+    pub constraint_violation: f64,
+    /// Each hard constraint's state at the result; absent without hard
+    /// constraints.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub constraint_report: Option<ConstraintReport>,
+    /// What a caller who reads only `status` could miss: a goal not
+    /// reached, a path through a soft obstacle, a control the hardware
+    /// cannot produce. Empty when there is nothing to say.
+    pub warnings: Vec<Warning>,
     /// Time spent solving, in ms.
     pub solve_time_ms: f64,
     /// Time spent waiting for a worker, in ms (0 outside the service).
     pub queue_time_ms: f64,
 }
+
+/// The state of the hard constraints at the result. A constraint is
+/// *active* at a step when it is within `solver.constraint_tolerance` of
+/// its bound, or past it.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct ConstraintReport {
+    /// Outer iterations of the augmented Lagrangian (each a warm iLQR
+    /// solve at new multipliers and penalty).
+    pub outer_iterations: usize,
+    /// `constraints.control`, if given.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub control: Option<ConstraintStatus>,
+    /// `constraints.state`, if given.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub state: Option<ConstraintStatus>,
+    /// `constraints.goal_tolerance`, if given (`active_steps` is 1 when a
+    /// component is at its tolerance).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub goal: Option<ConstraintStatus>,
+    /// One entry per hard obstacle (one with a `clearance`), in the
+    /// problem's order.
+    pub obstacles: Vec<ObstacleStatus>,
+}
+
+/// One constraint's largest violation and how often it is active.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct ConstraintStatus {
+    /// The largest violation, in the constrained quantity's unit; 0 when
+    /// it holds everywhere.
+    #[schema(minimum = 0.0)]
+    pub max_violation: f64,
+    /// Steps at which it is active.
+    pub active_steps: usize,
+}
+
+/// A hard obstacle at the result.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct ObstacleStatus {
+    /// Its index in `obstacles`.
+    pub obstacle: usize,
+    /// How far inside its clearance the path goes at worst (m); 0 when
+    /// the clearance holds at every state.
+    #[schema(minimum = 0.0)]
+    pub max_violation: f64,
+    /// Steps at which the clearance is active.
+    pub active_steps: usize,
+    /// The smallest signed distance `d` (m) from a state after the
+    /// initial one to the obstacle; at least `clearance` when the
+    /// constraint holds.
+    pub smallest_distance: f64,
+}
+
+/// Something the result's `status` does not say.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct Warning {
+    /// What it is, for programs.
+    pub code: WarningCode,
+    /// What it is, for people: where, by how much, and how to turn it
+    /// into a hard constraint.
+    pub message: String,
+}
+
+/// The kinds of [`Warning`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum WarningCode {
+    /// The final position is more than 0.1 m from the goal's (unless a
+    /// goal tolerance on both position components bounds it). Hard:
+    /// `constraints.goal_tolerance`.
+    GoalNotReached,
+    /// A state after the initial one is inside a soft obstacle (`d ≤ 0`;
+    /// for a point, at its centre). Hard: give the obstacle a `clearance`.
+    InsideObstacle,
+    /// A control is below the model's physical minimum (the quadrotor's
+    /// rotors cannot pull: thrust below 0 N) and no bound forbids it.
+    /// Hard: `constraints.control.lower`.
+    NegativeThrust,
+}
+
+impl WarningCode {
+    /// The wire name, e.g. `goal_not_reached`.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::GoalNotReached => "goal_not_reached",
+            Self::InsideObstacle => "inside_obstacle",
+            Self::NegativeThrust => "negative_thrust",
+        }
+    }
+}
+
+/// How far from the goal position (m) the final position may end before
+/// [`WarningCode::GoalNotReached`].
+pub const GOAL_WARNING_DISTANCE: f64 = 0.1;
 
 /// Feedback and feedforward gains along the trajectory.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
@@ -231,6 +354,21 @@ pub struct TraceEntry {
     pub convex_model: bool,
     /// Time since the solve started, ms.
     pub elapsed_ms: f64,
+    /// With hard constraints: the outer iteration of the augmented
+    /// Lagrangian this iteration belongs to (1-based).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 1)]
+    pub outer_iteration: Option<usize>,
+    /// With hard constraints: their largest violation after the iteration
+    /// (control bounds hold throughout and are not counted).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0.0)]
+    pub constraint_violation: Option<f64>,
+    /// With hard constraints: the augmented Lagrangian's penalty ρ (cost
+    /// units per squared constraint unit).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0.0)]
+    pub penalty: Option<f64>,
 }
 
 /// A problem that passed validation but cannot be solved as posed.
@@ -294,12 +432,14 @@ where
         // cost of 0 is a global optimum.
         cost_lower_bound: Some(0.0),
         second_order: spec.solver.method == Method::Ddp,
+        constraint_tolerance: spec.solver.constraint_tolerance,
         ..Options::default()
     };
     let cost = objective::<NX, NU>(spec, M::POSITION)?;
+    let constraints = hard_constraints::<NX, NU>(spec, M::POSITION)?;
     let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
     let (dt, horizon) = (spec.dt, spec.horizon);
-    let run = (&options, cancel, progress);
+    let run = (&options, &constraints, cancel, progress);
     with_solver(horizon, |solver| match spec.integrator {
         Integrator::Euler => {
             let problem = Problem {
@@ -342,13 +482,108 @@ fn objective<const NX: usize, const NU: usize>(
             weights: vector::<NX>(&spec.weights.terminal, "/weights/terminal")?,
         });
     for o in &spec.obstacles {
-        cost = cost.with_stage(ExpObstacle {
-            center: Vector2::from(o.center),
-            weight: o.weight,
-            position,
-        });
+        cost = match o.shape {
+            ObstacleShape::Point => cost.with_stage(ExpObstacle {
+                center: Vector2::from(o.center),
+                weight: o.weight,
+                position,
+            }),
+            // A hard-only shape (weight 0) adds nothing to the cost.
+            _ if o.weight == 0.0 => cost,
+            _ => cost.with_stage(ShapeObstacle {
+                region: region(o),
+                weight: o.weight,
+                position,
+            }),
+        };
     }
     Ok(cost)
+}
+
+/// What an obstacle occupies, as the core sees it.
+fn region(o: &Obstacle) -> Region {
+    let shape = match o.shape {
+        ObstacleShape::Point => Shape::Point,
+        ObstacleShape::Circle => Shape::Circle {
+            radius: o.radius.unwrap_or(0.0),
+        },
+        ObstacleShape::Rectangle => Shape::Rectangle {
+            size: Vector2::from(o.size.unwrap_or([0.0, 0.0])),
+            angle: o.angle.unwrap_or(0.0),
+        },
+    };
+    Region {
+        center: Vector2::from(o.center),
+        shape,
+    }
+}
+
+/// Which part of the problem each of the core's constraints is, in the
+/// order [`hard_constraints`] builds them.
+#[derive(Debug, Clone, Copy, PartialEq)]
+enum Part {
+    State,
+    Goal,
+    Obstacle(usize),
+}
+
+/// The parts of `spec`'s hard constraints in the order
+/// [`hard_constraints`] builds them.
+fn parts(spec: &ProblemSpec) -> Vec<Part> {
+    let c = &spec.constraints;
+    let state = c.state.iter().map(|_| Part::State);
+    let goal = c.goal_tolerance.iter().map(|_| Part::Goal);
+    let obstacles = spec
+        .obstacles
+        .iter()
+        .enumerate()
+        .filter(|(_, o)| o.clearance.is_some())
+        .map(|(j, _)| Part::Obstacle(j));
+    state.chain(goal).chain(obstacles).collect()
+}
+
+/// The hard constraints: control bounds, then (as [`parts`] lists them)
+/// state bounds, the goal tolerance and each hard obstacle's clearance.
+fn hard_constraints<const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    position: (usize, usize),
+) -> Result<Constraints<NX, NU>, Unsolvable> {
+    let c = &spec.constraints;
+    let control = c.control.as_ref().map(|b| {
+        let (lower, upper) = b.resolved(NU);
+        ControlBounds {
+            lower: SVector::from_column_slice(&lower),
+            upper: SVector::from_column_slice(&upper),
+        }
+    });
+    let mut other: Vec<Box<dyn Constraint<NX, NU>>> = Vec::new();
+    for part in parts(spec) {
+        match part {
+            Part::State => {
+                let (lower, upper) = c.state.clone().unwrap_or_default().resolved(NX);
+                other.push(Box::new(StateBounds::new(
+                    &SVector::from_column_slice(&lower),
+                    &SVector::from_column_slice(&upper),
+                )));
+            }
+            Part::Goal => {
+                let tolerance = c.goal_tolerance.as_deref().unwrap_or(&[]);
+                other.push(Box::new(GoalTolerance::new(
+                    vector::<NX>(&spec.goal_state, "/goal_state")?,
+                    &vector::<NX>(tolerance, "/constraints/goal_tolerance")?,
+                )));
+            }
+            Part::Obstacle(j) => {
+                let o = &spec.obstacles[j];
+                other.push(Box::new(Clearance {
+                    region: region(o),
+                    clearance: o.clearance.unwrap_or(0.0),
+                    position,
+                }));
+            }
+        }
+    }
+    Ok(Constraints { control, other })
 }
 
 /// The initial guess: the given rows (`initial_controls` or the warm
@@ -406,8 +641,9 @@ fn wire_gains<const NX: usize, const NU: usize>(
 
 /// How to run a solve: its options, its cancellation flag, and where each
 /// iteration's row goes.
-type Run<'a, 'p> = (
+type Run<'a, 'p, const NX: usize, const NU: usize> = (
     &'a Options,
+    &'a Constraints<NX, NU>,
     &'a AtomicBool,
     &'a mut (dyn FnMut(&TraceEntry) + 'p),
 );
@@ -418,7 +654,7 @@ fn solve_on<M, D, C, const NX: usize, const NU: usize>(
     spec: &ProblemSpec,
     problem: &Problem<D, C, NX>,
     u_init: &[SVector<f64, NU>],
-    (options, cancel, progress): Run<'_, '_>,
+    (options, constraints, cancel, progress): Run<'_, '_, NX, NU>,
 ) -> Result<SolveResult, Unsolvable>
 where
     M: Model<NX, NU>,
@@ -426,7 +662,7 @@ where
     C: Cost<NX, NU>,
 {
     let summary = solver
-        .solve_observed(problem, u_init, options, cancel, &mut |row| {
+        .solve_constrained(problem, constraints, u_init, options, cancel, &mut |row| {
             progress(&trace_entry(row));
         })
         .map_err(|e| Unsolvable(field_error(e, spec)))?;
@@ -448,6 +684,9 @@ where
         .output
         .trace
         .then(|| solver.trace().iter().map(trace_entry).collect());
+    let report = (!constraints.is_empty())
+        .then(|| constraint_report(spec, constraints, solver, summary.outer_iterations));
+    let warnings = warnings::<M, NX, NU>(spec, solver, goal_distance);
     Ok(SolveResult {
         model: M::NAME.to_owned(),
         integrator: spec.integrator,
@@ -463,9 +702,188 @@ where
         trace,
         convexified_after_iteration: summary.convexified_after,
         convex_model_at_end: summary.convexified_after.map(|_| summary.gains_convex),
+        constraint_violation: report.as_ref().map_or(0.0, |r| {
+            r.control
+                .iter()
+                .map(|c| c.max_violation)
+                .fold(summary.constraint_violation, f64::max)
+        }),
+        constraint_report: report,
+        warnings,
         solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })
+}
+
+/// Each hard constraint's largest violation and active steps at the
+/// solver's result.
+fn constraint_report<const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    constraints: &Constraints<NX, NU>,
+    solver: &Solver<NX, NU>,
+    outer_iterations: usize,
+) -> ConstraintReport {
+    let tolerance = spec.solver.constraint_tolerance;
+    let (xs, us) = (solver.states(), solver.controls());
+    let control = constraints.control.map(|b| {
+        let mut status = ConstraintStatus {
+            max_violation: 0.0,
+            active_steps: 0,
+        };
+        for u in us {
+            let mut active = false;
+            for i in 0..NU {
+                let excess = (b.lower[i] - u[i]).max(u[i] - b.upper[i]);
+                status.max_violation = status.max_violation.max(excess);
+                active |= excess >= -tolerance;
+            }
+            status.active_steps += usize::from(active);
+        }
+        status
+    });
+    let parts = parts(spec);
+    // Per part: the largest violation, the last step counted active, the
+    // active steps, and (for an obstacle) the smallest distance.
+    let mut found: Vec<(f64, Option<usize>, usize, f64)> =
+        vec![(0.0, None, 0, f64::INFINITY); parts.len()];
+    constraints.for_each_value(xs, us, |j, _, k, c, equality| {
+        let entry = &mut found[j];
+        entry.0 = entry.0.max(ilqr::constraint::violation(c, equality));
+        let active = if equality { true } else { c >= -tolerance };
+        if active && entry.1 != Some(k) {
+            (entry.1, entry.2) = (Some(k), entry.2 + 1);
+        }
+        if let Part::Obstacle(o) = parts[j] {
+            // c = clearance − d.
+            let d = spec.obstacles[o].clearance.unwrap_or(0.0) - c;
+            entry.3 = entry.3.min(d);
+        }
+    });
+    let status =
+        |(max_violation, _, active_steps, _): (f64, Option<usize>, usize, f64)| ConstraintStatus {
+            max_violation,
+            active_steps,
+        };
+    let of = |part: Part| {
+        parts
+            .iter()
+            .position(|p| *p == part)
+            .map(|j| status(found[j]))
+    };
+    ConstraintReport {
+        outer_iterations,
+        control,
+        state: of(Part::State),
+        goal: of(Part::Goal),
+        obstacles: parts
+            .iter()
+            .zip(&found)
+            .filter_map(|(part, f)| match part {
+                Part::Obstacle(o) => Some(ObstacleStatus {
+                    obstacle: *o,
+                    max_violation: f.0,
+                    active_steps: f.2,
+                    smallest_distance: f.3,
+                }),
+                _ => None,
+            })
+            .collect(),
+    }
+}
+
+/// What the result's status does not say (see [`WarningCode`]).
+fn warnings<M: Model<NX, NU>, const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    solver: &Solver<NX, NU>,
+    goal_distance: f64,
+) -> Vec<Warning> {
+    let mut out = Vec::new();
+    let (px, py) = M::POSITION;
+    let c = &spec.constraints;
+    // A goal tolerance on the position that keeps it within the threshold
+    // says so itself (in the constraint report).
+    let goal_bounded = c.goal_tolerance.as_ref().is_some_and(|t| {
+        let at = |i: usize| t.get(i).copied().unwrap_or(f64::INFINITY);
+        at(px).hypot(at(py)) <= GOAL_WARNING_DISTANCE
+    });
+    if goal_distance > GOAL_WARNING_DISTANCE && !goal_bounded {
+        out.push(Warning {
+            code: WarningCode::GoalNotReached,
+            message: format!(
+                "the final position is {} m from the goal's (more than {GOAL_WARNING_DISTANCE} \
+                 m): raise weights.terminal or the horizon, or make the goal hard with \
+                 constraints.goal_tolerance",
+                round(goal_distance)
+            ),
+        });
+    }
+    let xs = solver.states();
+    for (j, o) in spec.obstacles.iter().enumerate() {
+        if o.weight == 0.0 || o.clearance.is_some() {
+            continue;
+        }
+        let r = region(o);
+        let deepest = xs
+            .iter()
+            .enumerate()
+            .skip(1)
+            .map(|(k, x)| (k, r.distance(&Vector2::new(x[px], x[py])).value))
+            .min_by(|a, b| a.1.total_cmp(&b.1));
+        if let Some((k, d)) = deepest
+            && d <= 0.0
+        {
+            out.push(Warning {
+                code: WarningCode::InsideObstacle,
+                message: format!(
+                    "the path is inside soft obstacle {j} (d = {} m at step {k}): raise its \
+                     weight, or make it hard with a clearance",
+                    round(d)
+                ),
+            });
+        }
+    }
+    if let Some(minimum) = M::CONTROL_MINIMUM {
+        let bound = |i: usize| {
+            c.control
+                .as_ref()
+                .and_then(|b| b.lower.as_ref())
+                .and_then(|l| l.get(i).copied().flatten())
+                .is_some_and(|lo| lo >= minimum[i])
+        };
+        let lowest = solver
+            .controls()
+            .iter()
+            .enumerate()
+            .flat_map(|(k, u)| (0..NU).map(move |i| (k, i, u[i])))
+            .filter(|&(_, i, v)| v < minimum[i] && !bound(i))
+            .min_by(|a, b| (a.2 - minimum[a.1]).total_cmp(&(b.2 - minimum[b.1])));
+        if let Some((k, i, v)) = lowest {
+            let q = &M::CONTROL[i];
+            out.push(Warning {
+                code: WarningCode::NegativeThrust,
+                message: format!(
+                    "{} is {} {} at step {k}, below the least the hardware produces ({} {}): \
+                     bound it with constraints.control.lower",
+                    q.name,
+                    round(v),
+                    q.unit,
+                    minimum[i],
+                    q.unit
+                ),
+            });
+        }
+    }
+    out
+}
+
+/// `x` to 4 significant digits, for a message.
+fn round(x: f64) -> String {
+    if x == 0.0 || !x.is_finite() {
+        return x.to_string();
+    }
+    let digits = 3 - x.abs().log10().floor() as i32;
+    let scale = 10f64.powi(digits.clamp(0, 15));
+    ((x * scale).round() / scale).to_string()
 }
 
 /// A trace row in the wire's form.
@@ -480,6 +898,9 @@ fn trace_entry(r: &ilqr::TraceRow) -> TraceEntry {
         feedforward_norm: r.feedforward_norm,
         convex_model: r.convex_model,
         elapsed_ms: millis(r.elapsed),
+        outer_iteration: (r.outer_iteration > 0).then_some(r.outer_iteration),
+        constraint_violation: (r.outer_iteration > 0).then_some(r.constraint_violation),
+        penalty: (r.outer_iteration > 0).then_some(r.penalty),
     }
 }
 
@@ -720,6 +1141,7 @@ fn for_each_nearest_point(
 fn field_error(e: SolveError, spec: &ProblemSpec) -> FieldError {
     let pointer = match e {
         SolveError::EmptyHorizon => "/horizon",
+        SolveError::InvalidControlBounds { .. } => "/constraints/control",
         SolveError::ControlsLength { .. } => "/initial_controls",
         SolveError::InitialRolloutNotFinite { .. } if spec.initial_controls.is_some() => {
             "/initial_controls"

@@ -66,6 +66,7 @@ fn slow(time_limit_ms: u64) -> proto::Problem {
                 .map(|j| proto::Obstacle {
                     center: vec![1000.0 + f64::from(j), 1000.0],
                     weight: Some(1.0),
+                    ..Default::default()
                 })
                 .collect(),
         }),
@@ -211,6 +212,7 @@ async fn a_unicycle_problem_solves_as_its_json_does() {
             items: vec![proto::Obstacle {
                 center: vec![1.5, 0.4],
                 weight: None,
+                ..Default::default()
             }],
         }),
         initial_controls: guess.clone(),
@@ -241,6 +243,99 @@ async fn a_unicycle_problem_solves_as_its_json_does() {
 
 /// `SolveStream`: one iteration event per iteration, the rows of the
 /// result's trace, then the result, which is `Solve`'s answer.
+/// ALTRO's Dubins car with its hard circles, bounds (infinite: none) and
+/// goal equality solves over gRPC as its JSON does over HTTP, with the
+/// same constraint report and warnings; and an unknown shape is a field
+/// violation.
+#[tokio::test]
+async fn a_constrained_problem_solves_as_its_json_does() {
+    let s = Server::with_grpc(Config::default()).await;
+    let doc: Value =
+        serde_json::from_str(include_str!("../examples/dubins_three_obstacles.json")).unwrap();
+    let circle = |c: f64| proto::Obstacle {
+        center: vec![c, c],
+        weight: Some(0.0),
+        shape: proto::ObstacleShape::Circle.into(),
+        radius: Some(0.425),
+        clearance: Some(0.0),
+        ..Default::default()
+    };
+    let problem = proto::Problem {
+        model: Some(proto::Model {
+            r#type: Some("unicycle".into()),
+            ..Default::default()
+        }),
+        integrator: proto::Integrator::Rk4.into(),
+        dt: Some(0.05),
+        horizon: Some(100),
+        initial_state: vec![0.0, 0.0, 0.0],
+        goal_state: vec![3.0, 3.0, 0.0],
+        weights: Some(proto::Weights {
+            state: vec![1.0; 3],
+            control: vec![0.5; 2],
+            terminal: vec![10.0; 3],
+        }),
+        obstacles: Some(proto::Obstacles {
+            items: vec![circle(0.75), circle(1.5), circle(2.25)],
+        }),
+        initial_controls: vec![0.01; 200],
+        constraints: Some(proto::Constraints {
+            control: Some(proto::Bounds {
+                lower: vec![0.0, -3.0],
+                upper: vec![3.0, 3.0],
+            }),
+            state: Some(proto::Bounds {
+                lower: vec![f64::NEG_INFINITY; 3],
+                upper: vec![],
+            }),
+            goal_tolerance: vec![0.0; 3],
+        }),
+        ..Default::default()
+    };
+    let mut with_state = doc.clone();
+    with_state["constraints"]["state"] = json!({"lower": [null, null, null]});
+    let http = s.post_json("/solve", &with_state).await;
+    let r = s
+        .client()
+        .await
+        .solve(solve_request(problem.clone()))
+        .await
+        .unwrap()
+        .into_inner()
+        .result
+        .unwrap();
+    assert_eq!(r.status(), proto::SolveStatus::Converged);
+    assert_eq!(r.cost, http["cost"].as_f64().unwrap());
+    assert_eq!(
+        r.constraint_violation,
+        http["constraint_violation"].as_f64().unwrap()
+    );
+    let report = r.constraint_report.unwrap();
+    assert_eq!(report.obstacles.len(), 3);
+    assert_eq!(
+        u64::from(report.outer_iterations),
+        http["constraint_report"]["outer_iterations"]
+            .as_u64()
+            .unwrap()
+    );
+    assert!(r.trace.iter().all(|t| t.outer_iteration.is_some()));
+
+    let mut bad = problem;
+    bad.obstacles.as_mut().unwrap().items[1].shape = 9;
+    let status = s
+        .client()
+        .await
+        .solve(solve_request(bad))
+        .await
+        .unwrap_err();
+    assert_eq!(status.code(), tonic::Code::InvalidArgument);
+    assert!(
+        status.message().contains("obstacles[1].shape")
+            || format!("{status:?}").contains("obstacles[1].shape"),
+        "{status:?}"
+    );
+}
+
 #[tokio::test]
 async fn a_stream_gives_each_iteration_then_the_result() {
     let s = Server::with_grpc(Config::default()).await;
@@ -340,10 +435,12 @@ async fn invalid_problems_list_every_error_as_a_field_violation() {
                 proto::Obstacle {
                     center: vec![1.0, 2.0],
                     weight: None,
+                    ..Default::default()
                 },
                 proto::Obstacle {
                     center: vec![1.0],
                     weight: None,
+                    ..Default::default()
                 },
             ],
         }),

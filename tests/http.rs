@@ -2005,7 +2005,7 @@ async fn a_huge_key_or_string_is_not_echoed_many_times() {
         p["errors"][0]["detail"]
             .as_str()
             .unwrap()
-            .ends_with("expected one of `model`, `integrator`, `dt`, `horizon`, `initial_state`, `goal_state`, `weights`, `obstacles`, `initial_controls`, `warm_start`, `solver`, `output`"),
+            .ends_with("expected one of `model`, `integrator`, `dt`, `horizon`, `initial_state`, `goal_state`, `weights`, `obstacles`, `constraints`, `initial_controls`, `warm_start`, `solver`, `output`"),
         "{p}"
     );
 }

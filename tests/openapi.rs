@@ -218,7 +218,7 @@ fn the_spec_states_the_defaults_the_code_applies() {
             checked += 1;
         }
     }
-    assert_eq!(checked, 5);
+    assert_eq!(checked, 6);
     let problem = &schemas["ProblemSpec"]["properties"];
     assert_eq!(problem["integrator"]["default"], defaults["integrator"]);
     // Model-dependent members state no single default, and list each

@@ -12,6 +12,7 @@
 
 mod cli;
 mod common;
+mod constraints;
 mod grpc;
 mod http;
 mod models;

@@ -154,12 +154,14 @@ fuzz_target!(|input: Input| {
         .obstacles
         .iter()
         .take(MAX_OBSTACLES)
-        .map(|(c, w)| Obstacle {
-            center: [
-                c[0].get(0.0, MAX_STATE, true),
-                c[1].get(0.0, MAX_STATE, true),
-            ],
-            weight: w.get(0.0, MAX_WEIGHT, false),
+        .map(|(c, w)| {
+            Obstacle::point(
+                [
+                    c[0].get(0.0, MAX_STATE, true),
+                    c[1].get(0.0, MAX_STATE, true),
+                ],
+                w.get(0.0, MAX_WEIGHT, false),
+            )
         })
         .collect();
     spec.initial_controls = input.controls.as_ref().filter(|p| !p.is_empty()).map(|p| {

@@ -29,8 +29,8 @@ use serde_json::{Map, Value, json};
 use super::proto;
 use crate::models::{self, ModelInfo};
 use crate::problem::{
-    FieldError, Integrator, Invalid, Limits, MAX_REPORTED_ERRORS, Method, ParseError, ProblemSpec,
-    escape_token, num,
+    FieldError, Integrator, Invalid, Limits, MAX_REPORTED_ERRORS, Method, ObstacleShape,
+    ParseError, ProblemSpec, escape_token, num,
 };
 use crate::solve::{SolveResult, SolveStatus, TraceEntry};
 
@@ -221,6 +221,38 @@ pub fn document(p: proto::Problem) -> Document {
                     let pointer = format!("/obstacles/{j}/weight");
                     members.insert("weight".into(), w.number(&pointer, weight));
                 }
+                match shape_of(o.shape) {
+                    Ok(None) => {}
+                    Ok(Some(shape)) => {
+                        members.insert("shape".into(), shape.into());
+                    }
+                    Err(n) => {
+                        members.insert("shape".into(), Value::Null);
+                        w.replace(
+                            &format!("/obstacles/{j}/shape"),
+                            format!(
+                                "unknown ObstacleShape value {n}: expected OBSTACLE_SHAPE_POINT \
+                                 (1), OBSTACLE_SHAPE_CIRCLE (2) or OBSTACLE_SHAPE_RECTANGLE (3)"
+                            ),
+                        );
+                    }
+                }
+                for (name, x) in [
+                    ("radius", o.radius),
+                    ("angle", o.angle),
+                    ("clearance", o.clearance),
+                ] {
+                    if let Some(x) = x {
+                        let value = w.number(&format!("/obstacles/{j}/{name}"), x);
+                        members.insert(name.into(), value);
+                    }
+                }
+                w.vector(
+                    &mut members,
+                    "size",
+                    &format!("/obstacles/{j}/size"),
+                    &o.size,
+                );
                 Value::Object(members)
             })
             .collect();
@@ -249,6 +281,10 @@ pub fn document(p: proto::Problem) -> Document {
         if let Some(ms) = s.time_limit_ms {
             members.insert("time_limit_ms".into(), ms.into());
         }
+        if let Some(t) = s.constraint_tolerance {
+            let value = w.number("/solver/constraint_tolerance", t);
+            members.insert("constraint_tolerance".into(), value);
+        }
         match method_of(s.method) {
             Ok(None) => {}
             Ok(Some(m)) => {
@@ -266,6 +302,42 @@ pub fn document(p: proto::Problem) -> Document {
             }
         }
         doc.insert("solver".into(), Value::Object(members));
+    }
+    if let Some(c) = p.constraints {
+        let mut members = Map::new();
+        for (name, bounds) in [("control", c.control), ("state", c.state)] {
+            let Some(b) = bounds else { continue };
+            let mut sides = Map::new();
+            for (side, xs, none) in [
+                ("lower", &b.lower, f64::NEG_INFINITY),
+                ("upper", &b.upper, f64::INFINITY),
+            ] {
+                if xs.is_empty() {
+                    continue;
+                }
+                let pointer = format!("/constraints/{name}/{side}");
+                let values = xs
+                    .iter()
+                    .enumerate()
+                    .map(|(i, &x)| {
+                        if x == none {
+                            Value::Null
+                        } else {
+                            w.number(&format!("{pointer}/{i}"), x)
+                        }
+                    })
+                    .collect();
+                sides.insert(side.into(), Value::Array(values));
+            }
+            members.insert(name.into(), Value::Object(sides));
+        }
+        w.vector(
+            &mut members,
+            "goal_tolerance",
+            "/constraints/goal_tolerance",
+            &c.goal_tolerance,
+        );
+        doc.insert("constraints".into(), Value::Object(members));
     }
     if let Some(o) = p.output {
         let mut members = Map::new();
@@ -414,6 +486,24 @@ fn method_of(value: i32) -> Result<Option<&'static str>, i32> {
     }
 }
 
+fn shape_of(value: i32) -> Result<Option<&'static str>, i32> {
+    match proto::ObstacleShape::try_from(value) {
+        Ok(proto::ObstacleShape::Unspecified) => Ok(None),
+        Ok(proto::ObstacleShape::Point) => Ok(Some("point")),
+        Ok(proto::ObstacleShape::Circle) => Ok(Some("circle")),
+        Ok(proto::ObstacleShape::Rectangle) => Ok(Some("rectangle")),
+        Err(_) => Err(value),
+    }
+}
+
+fn shape(s: ObstacleShape) -> proto::ObstacleShape {
+    match s {
+        ObstacleShape::Point => proto::ObstacleShape::Point,
+        ObstacleShape::Circle => proto::ObstacleShape::Circle,
+        ObstacleShape::Rectangle => proto::ObstacleShape::Rectangle,
+    }
+}
+
 fn integrator(i: Integrator) -> proto::Integrator {
     match i {
         Integrator::Euler => proto::Integrator::Euler,
@@ -435,6 +525,7 @@ fn status(s: SolveStatus) -> proto::SolveStatus {
         SolveStatus::TimeLimit => proto::SolveStatus::TimeLimit,
         SolveStatus::Cancelled => proto::SolveStatus::Cancelled,
         SolveStatus::NoProgress => proto::SolveStatus::NoProgress,
+        SolveStatus::Infeasible => proto::SolveStatus::Infeasible,
     }
 }
 
@@ -469,6 +560,11 @@ pub fn problem_message(spec: &ProblemSpec) -> proto::Problem {
                 .map(|o| proto::Obstacle {
                     center: o.center.to_vec(),
                     weight: Some(o.weight),
+                    shape: shape(o.shape).into(),
+                    radius: o.radius,
+                    size: o.size.map_or_else(Vec::new, |s| s.to_vec()),
+                    angle: o.angle,
+                    clearance: o.clearance,
                 })
                 .collect(),
         }),
@@ -482,6 +578,24 @@ pub fn problem_message(spec: &ProblemSpec) -> proto::Problem {
             tolerance: Some(spec.solver.tolerance),
             time_limit_ms: spec.solver.time_limit_ms,
             method: method(spec.solver.method).into(),
+            constraint_tolerance: Some(spec.solver.constraint_tolerance),
+        }),
+        constraints: (!spec.constraints.is_empty()).then(|| {
+            let c = &spec.constraints;
+            let bounds = |b: &crate::problem::Bounds| {
+                let side = |xs: &Option<Vec<Option<f64>>>, none: f64| {
+                    xs.iter().flatten().map(|x| x.unwrap_or(none)).collect()
+                };
+                proto::Bounds {
+                    lower: side(&b.lower, f64::NEG_INFINITY),
+                    upper: side(&b.upper, f64::INFINITY),
+                }
+            };
+            proto::Constraints {
+                control: c.control.as_ref().map(bounds),
+                state: c.state.as_ref().map(bounds),
+                goal_tolerance: c.goal_tolerance.clone().unwrap_or_default(),
+            }
         }),
         output: Some(proto::OutputOptions {
             gains: Some(spec.output.gains),
@@ -535,6 +649,9 @@ pub fn trace_message(t: &TraceEntry) -> proto::TraceEntry {
         feedforward_norm: t.feedforward_norm,
         convex_model: t.convex_model,
         elapsed_ms: t.elapsed_ms,
+        outer_iteration: t.outer_iteration.map(u32_of),
+        constraint_violation: t.constraint_violation,
+        penalty: t.penalty,
     }
 }
 
@@ -575,6 +692,37 @@ pub fn result_message(r: &SolveResult) -> proto::SolveResult {
         convex_model_at_end: r.convex_model_at_end,
         solve_time_ms: r.solve_time_ms,
         queue_time_ms: r.queue_time_ms,
+        constraint_violation: r.constraint_violation,
+        constraint_report: r.constraint_report.as_ref().map(|c| {
+            let status = |s: &crate::solve::ConstraintStatus| proto::ConstraintStatus {
+                max_violation: s.max_violation,
+                active_steps: u32_of(s.active_steps),
+            };
+            proto::ConstraintReport {
+                outer_iterations: u32_of(c.outer_iterations),
+                control: c.control.as_ref().map(status),
+                state: c.state.as_ref().map(status),
+                goal: c.goal.as_ref().map(status),
+                obstacles: c
+                    .obstacles
+                    .iter()
+                    .map(|o| proto::ObstacleStatus {
+                        obstacle: u32_of(o.obstacle),
+                        max_violation: o.max_violation,
+                        active_steps: u32_of(o.active_steps),
+                        smallest_distance: o.smallest_distance,
+                    })
+                    .collect(),
+            }
+        }),
+        warnings: r
+            .warnings
+            .iter()
+            .map(|w| proto::Warning {
+                code: w.code.as_str().into(),
+                message: w.message.clone(),
+            })
+            .collect(),
     }
 }
 
@@ -770,7 +918,19 @@ mod tests {
                 initial_state in numbers(8),
                 goal_state in numbers(8),
                 weights in proptest::option::of((numbers(8), numbers(4), numbers(8))),
-                obstacles in proptest::option::of(vec((numbers(4), proptest::option::of(number())), 0..4)),
+                obstacles in proptest::option::of(vec((
+                    numbers(4),
+                    proptest::option::of(number()),
+                    -1..5i32,
+                    proptest::option::of(number()),
+                    numbers(3),
+                    proptest::option::of(number()),
+                ), 0..4)),
+                constraints in proptest::option::of((
+                    proptest::option::of((numbers(4), numbers(4))),
+                    proptest::option::of((numbers(8), numbers(8))),
+                    numbers(8),
+                )),
                 initial_controls in numbers(20),
                 warm_start_controls in numbers(20),
                 solver in proptest::option::of((
@@ -790,7 +950,15 @@ mod tests {
                     obstacles: obstacles.map(|items| proto::Obstacles {
                         items: items
                             .into_iter()
-                            .map(|(center, weight)| proto::Obstacle { center, weight })
+                            .map(|(center, weight, shape, radius, size, clearance)| proto::Obstacle {
+                                center,
+                                weight,
+                                shape,
+                                radius,
+                                size,
+                                angle: radius.map(|r| r * 0.5),
+                                clearance,
+                            })
                             .collect(),
                     }),
                     initial_controls,
@@ -800,8 +968,14 @@ mod tests {
                         tolerance,
                         time_limit_ms,
                         method,
+                        constraint_tolerance: tolerance,
                     }),
                     output: None,
+                    constraints: constraints.map(|(control, state, goal_tolerance)| proto::Constraints {
+                        control: control.map(|(lower, upper)| proto::Bounds { lower, upper }),
+                        state: state.map(|(lower, upper)| proto::Bounds { lower, upper }),
+                        goal_tolerance,
+                    }),
                 }
             }
         }

@@ -88,8 +88,10 @@ pub struct ProblemSpec {
     pub goal_state: Vec<f64>,
     /// Diagonal cost weights.
     pub weights: Weights,
-    /// Soft obstacles.
+    /// Obstacles, soft or hard.
     pub obstacles: Vec<Obstacle>,
+    /// Hard constraints.
+    pub constraints: ConstraintsSpec,
     /// Initial guess for the controls, N rows; `None` for the model's rest
     /// controls (or the warm start's).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -202,19 +204,192 @@ pub struct Weights {
     pub terminal: Vec<f64>,
 }
 
-/// A soft obstacle: adds `weight·exp(−‖p − center‖)` to every stage cost,
-/// where p is the model's position in the plane.
+/// An obstacle: a point, circle or rectangle in the plane of the model's
+/// position `p`. `d` is the signed distance from `p` to it (to the centre
+/// for a point; negative inside a circle or rectangle). With `weight` it
+/// adds `weight·exp(−d)` to every stage cost (soft; for a point, eq. 13
+/// of the paper); with `clearance` it is hard: `d ≥ clearance` at every
+/// state after the initial one. It can be both.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize, ToSchema)]
 #[serde(deny_unknown_fields)]
 pub struct Obstacle {
-    /// Centre `[x, y]` in m.
+    /// `point` (default), `circle` (with `radius`) or `rectangle` (with
+    /// `size` and `angle`).
+    #[serde(default, skip_serializing_if = "ObstacleShape::is_point")]
+    #[schema(default = "point")]
+    pub shape: ObstacleShape,
+    /// Centre `[x, y]` in m. No default: an obstacle is where it is.
     #[schema(schema_with = crate::schema::obstacle_center)]
     pub center: [f64; 2],
-    /// Weight q (cost units, from 0 to 1e12). Default 1000, the seed
-    /// obstacle's. The centre has no default: an obstacle is where it is.
+    /// A circle's radius, m, from 0 to 1e6; required for a circle, and
+    /// only for one.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, minimum = 0.0, maximum = 1e6)]
+    pub radius: Option<f64>,
+    /// A rectangle's `[width, height]`, m, each from 0 to 1e6; required
+    /// for a rectangle, and only for one. Width is along the rectangle's
+    /// own x axis.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(schema_with = crate::schema::obstacle_size)]
+    pub size: Option<[f64; 2]>,
+    /// A rectangle's rotation, rad, counter-clockwise about its centre.
+    /// Default 0; only for a rectangle.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, default = 0.0, minimum = -1e6, maximum = 1e6)]
+    pub angle: Option<f64>,
+    /// Weight q of the soft term `q·exp(−d)` (cost units, from 0 to 1e12).
+    /// Default 1000, the seed obstacle's; 0 for a hard obstacle only.
     #[serde(default = "default_obstacle_weight")]
     #[schema(default = 1000.0, minimum = 0.0, maximum = 1e12)]
     pub weight: f64,
+    /// Hard: the smallest signed distance `d` allowed at every state after
+    /// the initial one, m (negative lets the position that far inside).
+    /// Default: none, the obstacle is soft only.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, minimum = -1e6, maximum = 1e6)]
+    pub clearance: Option<f64>,
+}
+
+impl Obstacle {
+    /// A soft point obstacle: the seed's kind.
+    pub const fn point(center: [f64; 2], weight: f64) -> Self {
+        Self {
+            shape: ObstacleShape::Point,
+            center,
+            radius: None,
+            size: None,
+            angle: None,
+            weight,
+            clearance: None,
+        }
+    }
+}
+
+/// The shape of an obstacle.
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum ObstacleShape {
+    /// A point at `center`: `d` is the distance to it.
+    #[default]
+    Point,
+    /// A disc of `radius` about `center`.
+    Circle,
+    /// A `size` rectangle about `center`, turned by `angle`.
+    Rectangle,
+}
+
+impl ObstacleShape {
+    fn is_point(&self) -> bool {
+        *self == Self::Point
+    }
+
+    /// The wire name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Point => "point",
+            Self::Circle => "circle",
+            Self::Rectangle => "rectangle",
+        }
+    }
+}
+
+/// Hard constraints. Each member is optional; one left out constrains
+/// nothing. Lengths follow the model (`GET /models`).
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct ConstraintsSpec {
+    /// Bounds on the controls at every step, in the controls' units. They
+    /// hold exactly in the result.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false)]
+    pub control: Option<Bounds>,
+    /// Bounds on the state at every step after the initial one, in the
+    /// state's units.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false)]
+    pub state: Option<Bounds>,
+    /// `|x_N − goal_state|` at most this, per state component, in its
+    /// unit; 0 makes the component an equality. Each at least 0.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, schema_with = crate::schema::goal_tolerance)]
+    pub goal_tolerance: Option<Vec<f64>>,
+}
+
+impl ConstraintsSpec {
+    /// Whether it constrains nothing.
+    pub fn is_empty(&self) -> bool {
+        self.control.is_none() && self.state.is_none() && self.goal_tolerance.is_none()
+    }
+}
+
+/// Lower and upper bounds, one entry per component; `null` (or a missing
+/// list) is no bound. Each lower bound at most its upper bound.
+#[derive(Debug, Clone, Default, PartialEq, Serialize, Deserialize, ToSchema)]
+#[serde(default, deny_unknown_fields)]
+pub struct Bounds {
+    /// Lower bounds; `null` for none.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, schema_with = crate::schema::bound_list)]
+    pub lower: Option<Vec<Option<f64>>>,
+    /// Upper bounds; `null` for none.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false, schema_with = crate::schema::bound_list)]
+    pub upper: Option<Vec<Option<f64>>>,
+}
+
+impl Bounds {
+    /// The bounds as numbers, `±∞` for none, `n` of each.
+    pub fn resolved(&self, n: usize) -> (Vec<f64>, Vec<f64>) {
+        let side = |xs: &Option<Vec<Option<f64>>>, none: f64| {
+            (0..n)
+                .map(|i| {
+                    xs.as_ref()
+                        .and_then(|v| v.get(i).copied().flatten())
+                        .unwrap_or(none)
+                })
+                .collect()
+        };
+        (
+            side(&self.lower, f64::NEG_INFINITY),
+            side(&self.upper, f64::INFINITY),
+        )
+    }
 }
 
 fn default_obstacle_weight() -> f64 {
@@ -260,6 +435,11 @@ pub struct SolverSpec {
     #[serde(deserialize_with = "wire::de_name")]
     #[schema(default = "ilqr")]
     pub method: Method,
+    /// With hard constraints: the largest violation a `converged` result
+    /// may have, in each constraint's own units (m, rad, …). Default 1e-6;
+    /// from 1e-12 to 1.
+    #[schema(default = 1e-6, minimum = 1e-12, maximum = 1.0)]
+    pub constraint_tolerance: f64,
 }
 
 /// Optional parts of the result. Leaving them out shrinks large responses.
@@ -298,6 +478,7 @@ impl ProblemSpec {
                 terminal: d.terminal_weights.to_vec(),
             },
             obstacles: d.obstacles.to_vec(),
+            constraints: ConstraintsSpec::default(),
             initial_controls: None,
             warm_start: None,
             solver: SolverSpec::default(),
@@ -336,6 +517,7 @@ impl Default for SolverSpec {
             tolerance: 1e-9,
             time_limit_ms: None,
             method: Method::Ilqr,
+            constraint_tolerance: 1e-6,
         }
     }
 }

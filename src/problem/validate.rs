@@ -296,7 +296,9 @@ impl ProblemSpec {
                 MAX_WEIGHT,
                 "cost units",
             );
+            check_shape(j, o, v);
         }
+        self.check_constraints(model, v);
         if let (Some(_), Some(_)) = (&self.initial_controls, &self.warm_start) {
             v.push(
                 "/warm_start",
@@ -340,6 +342,16 @@ impl ProblemSpec {
                 ),
             );
         }
+        if !(s.constraint_tolerance.is_finite() && (1e-12..=1.0).contains(&s.constraint_tolerance))
+        {
+            v.push(
+                "/solver/constraint_tolerance",
+                format!(
+                    "must be a number from 1e-12 to 1 (the constraints' own units), got {}",
+                    num(s.constraint_tolerance)
+                ),
+            );
+        }
         if let Some(t) = s.time_limit_ms
             && (t == 0 || limits.max_time_limit_ms.is_some_and(|max| t > max))
         {
@@ -350,6 +362,67 @@ impl ProblemSpec {
             v.push(
                 "/solver/time_limit_ms",
                 format!("must be {range} (ms), got {t}"),
+            );
+        }
+    }
+
+    /// `constraints`: lengths the model's, values finite and in range,
+    /// each lower bound at most its upper bound, tolerances at least 0.
+    fn check_constraints(&self, model: Option<&dyn ServedModel>, v: &mut Checker) {
+        let c = &self.constraints;
+        let sides = [
+            (
+                "control",
+                &c.control,
+                model.map(|m| m.control()),
+                MAX_CONTROL,
+            ),
+            ("state", &c.state, model.map(|m| m.state()), MAX_STATE),
+        ];
+        for (name, bounds, names, max) in sides {
+            let Some(b) = bounds else { continue };
+            for (side, xs) in [("lower", &b.lower), ("upper", &b.upper)] {
+                let Some(xs) = xs else { continue };
+                let pointer = format!("/constraints/{name}/{side}");
+                if let (Some(m), Some(names)) = (model, names) {
+                    v.length(&pointer, xs.len(), m, names);
+                }
+                for (i, x) in xs.iter().enumerate() {
+                    if let Some(x) = x {
+                        let unit = names.and_then(|n| n.get(i)).map_or("its unit", |q| q.unit);
+                        v.range(&format_args!("{pointer}/{i}"), *x, -max, max, unit);
+                    }
+                }
+            }
+            if let (Some(lower), Some(upper)) = (&b.lower, &b.upper) {
+                for (i, (lo, hi)) in lower.iter().zip(upper).enumerate() {
+                    if let (Some(lo), Some(hi)) = (lo, hi)
+                        && lo > hi
+                    {
+                        v.push(
+                            &format!("/constraints/{name}/lower/{i}"),
+                            format!(
+                                "must be at most the upper bound {} (no value satisfies both), \
+                                 got {}",
+                                num(*hi),
+                                num(*lo)
+                            ),
+                        );
+                    }
+                }
+            }
+        }
+        if let Some(t) = &c.goal_tolerance {
+            let states = model.map(|m| m.state());
+            if let (Some(m), Some(names)) = (model, states) {
+                v.length("/constraints/goal_tolerance", t.len(), m, names);
+            }
+            v.range_vector(
+                &"/constraints/goal_tolerance",
+                t,
+                (0.0, MAX_STATE),
+                states,
+                Unit::Own,
             );
         }
     }
@@ -394,6 +467,77 @@ impl ProblemSpec {
                 Unit::Own,
             );
         }
+    }
+}
+
+/// An obstacle's shape members: each one its shape's, in range, and the
+/// ones its shape needs given.
+fn check_shape(j: usize, o: &super::Obstacle, v: &mut Checker) {
+    use super::ObstacleShape;
+    let shape = o.shape.as_str();
+    let needs = |v: &mut Checker, member: &str, given: bool, wanted: bool, what: &str| {
+        let pointer = format!("/obstacles/{j}/{member}");
+        if given && !wanted {
+            v.push(
+                &pointer,
+                format!("`{member}` is only for a {what}; this obstacle is a {shape}"),
+            );
+        } else if !given && wanted && !v.skips(&pointer) {
+            v.push(
+                &pointer,
+                format!("a {shape} needs `{member}` ({})", member_expected(member)),
+            );
+        }
+    };
+    let circle = o.shape == ObstacleShape::Circle;
+    let rectangle = o.shape == ObstacleShape::Rectangle;
+    needs(v, "radius", o.radius.is_some(), circle, "circle");
+    needs(v, "size", o.size.is_some(), rectangle, "rectangle");
+    if o.angle.is_some() && !rectangle {
+        needs(v, "angle", true, false, "rectangle");
+    }
+    if let Some(r) = o.radius {
+        v.range(
+            &format_args!("/obstacles/{j}/radius"),
+            r,
+            0.0,
+            MAX_STATE,
+            "m",
+        );
+    }
+    if let Some(size) = &o.size {
+        v.range_all(
+            &format_args!("/obstacles/{j}/size"),
+            size,
+            (0.0, MAX_STATE),
+            "m",
+        );
+    }
+    if let Some(a) = o.angle {
+        v.range(
+            &format_args!("/obstacles/{j}/angle"),
+            a,
+            -MAX_STATE,
+            MAX_STATE,
+            "rad",
+        );
+    }
+    if let Some(c) = o.clearance {
+        v.range(
+            &format_args!("/obstacles/{j}/clearance"),
+            c,
+            -MAX_STATE,
+            MAX_STATE,
+            "m",
+        );
+    }
+}
+
+/// What a shape member takes, for the error that it is missing.
+fn member_expected(member: &str) -> &'static str {
+    match member {
+        "radius" => "a number of m from 0 to 1e6",
+        _ => "[width, height] in m, each from 0 to 1e6",
     }
 }
 

@@ -15,7 +15,8 @@ use utoipa::ToSchema;
 
 use super::recover::num;
 use super::{
-    Integrator, Limits, ModelSpec, Obstacle, OutputSpec, ProblemSpec, SolverSpec, Weights,
+    ConstraintsSpec, Integrator, Limits, ModelSpec, Obstacle, OutputSpec, ProblemSpec, SolverSpec,
+    Weights,
 };
 use crate::models::{self, ServedModel};
 use crate::schema;
@@ -61,10 +62,15 @@ pub struct ProblemDoc {
     #[serde(deserialize_with = "de_object")]
     #[schema(schema_with = schema::weights)]
     pub weights: Option<WeightsDoc>,
-    /// Soft obstacles.
+    /// Obstacles: points, circles or rectangles, soft (`weight`), hard
+    /// (`clearance`) or both.
     #[serde(deserialize_with = "de_objects")]
     #[schema(schema_with = schema::obstacles)]
     pub obstacles: Option<Vec<Obstacle>>,
+    /// Hard constraints: control and state bounds, and a goal tolerance.
+    #[serde(deserialize_with = "de_object")]
+    #[schema(schema_with = schema::constraints)]
+    pub constraints: Option<ConstraintsSpec>,
     /// Initial guess for the controls: N rows, one entry per control.
     #[schema(schema_with = schema::initial_controls)]
     pub initial_controls: Option<Vec<Vec<f64>>>,
@@ -229,6 +235,7 @@ impl ProblemDoc {
                     .unwrap_or_else(|| d.terminal_weights.to_vec()),
             },
             obstacles: self.obstacles.unwrap_or_else(|| d.obstacles.to_vec()),
+            constraints: self.constraints.unwrap_or_default(),
             initial_controls: self.initial_controls,
             warm_start: self.warm_start,
             solver: self.solver.unwrap_or_default(),

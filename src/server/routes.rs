@@ -46,7 +46,15 @@ use crate::solve::SolveResult;
     ),
     // Referenced only through `schema::object_or_null`, which utoipa does
     // not follow to collect them as it does a field's own type.
-    components(schemas(WeightsDoc, SolverSpec, OutputSpec, crate::problem::Obstacle)),
+    components(schemas(
+        WeightsDoc,
+        SolverSpec,
+        OutputSpec,
+        crate::problem::Obstacle,
+        crate::problem::ObstacleShape,
+        crate::problem::ConstraintsSpec,
+        crate::problem::Bounds
+    )),
     tags(
         (name = "solve", description = "Trajectory solves"),
         (name = "operations", description = "Health, readiness, metrics and this documentation")

@@ -21,6 +21,11 @@
 //! * `backward::full_pass_n100`: the first backward pass of the seed solve,
 //!   100 `riccati_step`s along the hover rollout, through the public API.
 //!
+//! * `constrained::dubins_three_obstacles`: ALTRO's three-obstacle Dubins
+//!   car (unicycle, RK4, N = 100, three hard circles, speed and turn-rate
+//!   bounds, the goal as an equality) solved from controls of 0.01 by the
+//!   augmented Lagrangian with box-DDP, one `Solver` reused.
+//!
 //! `AllocProfiler` is the global allocator, so each row also reports the
 //! allocations made per iteration.
 
@@ -36,13 +41,38 @@ use nalgebra::{SMatrix, SVector};
 #[path = "../tests/common/mod.rs"]
 mod common;
 
-use common::{hover, seed_problem};
+use common::{dubins, hover, seed_problem};
 
 #[global_allocator]
 static ALLOC: AllocProfiler = AllocProfiler::system();
 
 fn main() {
     divan::main();
+}
+
+mod constrained {
+    use super::*;
+
+    #[divan::bench]
+    fn dubins_three_obstacles(bencher: Bencher) {
+        let (problem, constraints) = dubins();
+        let u = vec![SVector::<f64, 2>::repeat(0.01); 100];
+        let options = Options::default();
+        let cancel = AtomicBool::new(false);
+        let mut solver = Solver::<3, 2>::new(100);
+        bencher.bench_local(|| {
+            solver
+                .solve_constrained(
+                    black_box(&problem),
+                    &constraints,
+                    &u,
+                    &options,
+                    &cancel,
+                    &mut |_| {},
+                )
+                .unwrap()
+        });
+    }
 }
 
 mod seed_solve {

@@ -10,9 +10,13 @@
 //! * [`StateTracking`]: `(x − x_goal)ᵀ Q (x − x_goal)`, `Q` diagonal;
 //! * [`ControlEffort`]: `uᵀ R u`, `R` diagonal;
 //! * [`ExpObstacle`]: `q · exp(−‖p − c‖)` with `p` the position `(x, y)`;
-//! * [`TerminalTracking`]: `(x_N − x_goal)ᵀ Q_f (x_N − x_goal)`.
+//! * [`TerminalTracking`]: `(x_N − x_goal)ᵀ Q_f (x_N − x_goal)`;
+//! * [`ShapeObstacle`]: `q · exp(−d(p))` with `d` the signed distance to a
+//!   circle or rectangle ([`Region`]), the same term for shapes.
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
+
+use crate::constraint::Region;
 
 /// Second-order model of a stage cost at `(x, u)`: the `l_x`, `l_u`, `l_xx`,
 /// `l_uu`, `l_ux` of eqs. 18–23.
@@ -421,6 +425,81 @@ impl ExpObstacle {
                 e.l_xx[(idx[a], idx[b])] += hess[(a, b)];
             }
         }
+    }
+}
+
+/// A soft obstacle of any shape: `q · exp(−d(p))`, `d` the signed distance
+/// from the position `p` to `region` (negative inside). For a
+/// [`Shape::Point`](crate::Shape::Point) this is [`ExpObstacle`]'s term.
+///
+/// Its Hessian in `p` is `q e^{−d} (∇d∇dᵀ − ∇²d)`: the first part is
+/// positive semi-definite, and `∇²d` is the boundary's curvature (around a
+/// circle, a rectangle's corner), which the convex expansion drops.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ShapeObstacle {
+    /// What the obstacle occupies.
+    pub region: Region,
+    /// Weight `q` (cost units).
+    pub weight: f64,
+    /// Indices of the position components in the state.
+    pub position: (usize, usize),
+}
+
+impl ShapeObstacle {
+    fn point<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
+        Vector2::new(x[self.position.0], x[self.position.1])
+    }
+
+    fn add<const NX: usize, const NU: usize>(
+        &self,
+        x: &SVector<f64, NX>,
+        convex: bool,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        let d = self.region.distance(&self.point(x));
+        let value = self.weight * (-d.value).exp();
+        let grad = -d.gradient * value;
+        let mut hess = d.gradient * d.gradient.transpose() * value;
+        if !convex {
+            hess -= d.hessian * value;
+        }
+        let idx = [self.position.0, self.position.1];
+        for a in 0..2 {
+            e.l_x[idx[a]] += grad[a];
+            for b in 0..2 {
+                e.l_xx[(idx[a], idx[b])] += hess[(a, b)];
+            }
+        }
+    }
+}
+
+impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ShapeObstacle {
+    fn value(&self, _k: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
+        self.weight * (-self.region.signed_distance(&self.point(x))).exp()
+    }
+
+    fn expand(
+        &self,
+        _k: usize,
+        x: &SVector<f64, NX>,
+        _u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.add(x, false, e);
+    }
+
+    fn expand_convex(
+        &self,
+        _k: usize,
+        x: &SVector<f64, NX>,
+        _u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.add(x, true, e);
+    }
+
+    fn has_convex_approximation(&self) -> bool {
+        self.weight != 0.0
     }
 }
 

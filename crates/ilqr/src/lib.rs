@@ -23,6 +23,11 @@
 //!   ([`StageExpansion`], [`TerminalExpansion`]) and the terms of eqs. 13–15
 //!   ([`StateTracking`], [`ControlEffort`], [`ExpObstacle`], [`TerminalTracking`]),
 //!   summed by [`Objective`].
+//! * [`constraint`]: hard constraints ([`Constraint`]: [`StateBounds`],
+//!   [`GoalTolerance`], [`Clearance`] from a [`Region`]) and
+//!   [`ControlBounds`], which [`Solver::solve_constrained`] meets with an
+//!   augmented-Lagrangian outer loop around iLQR and a box-constrained
+//!   backward pass;
 //! * [`solver`]: the iLQR driver loop (backward pass eqs. 31–48, forward pass
 //!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation and,
 //!   where no regularisation helps, a fall back to the cost's convex
@@ -67,6 +72,7 @@
 #![warn(missing_docs)]
 
 pub mod boxqp;
+pub mod constraint;
 pub mod cost;
 pub mod dynamics;
 mod kernels;
@@ -76,9 +82,13 @@ pub mod solver;
 pub mod unicycle;
 
 pub use boxqp::{BoxQpError, BoxQpOptions, BoxQpSolution, BoxQpStatus, solve_box_qp};
+pub use constraint::{
+    Clearance, Constraint, Constraints, ControlBounds, Distance, GoalTolerance, Knot, Region,
+    Shape, StateBounds,
+};
 pub use cost::{
-    ControlEffort, Cost, ExpObstacle, Objective, StageCost, StageExpansion, StateTracking,
-    TerminalCost, TerminalExpansion, TerminalTracking,
+    ControlEffort, Cost, ExpObstacle, Objective, ShapeObstacle, StageCost, StageExpansion,
+    StateTracking, TerminalCost, TerminalExpansion, TerminalTracking,
 };
 pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler, Rk4, Sparsity};
 pub use model::{Model, Parameter, Quantity};

@@ -62,6 +62,13 @@ pub trait Model<const NX: usize, const NU: usize>: ContinuousDynamics<NX, NU> + 
     /// obstacles are measured from.
     const POSITION: (usize, usize);
 
+    /// The least each control can physically be, where the hardware has
+    /// a floor the equations do not (a rotor pushes but cannot pull: 0 N
+    /// of thrust); `None` where there is none. The equations accept any
+    /// control, so a solve may go below it unless a bound forbids it; a
+    /// service can warn when it does.
+    const CONTROL_MINIMUM: Option<[f64; NU]> = None;
+
     /// The model with `values`, one per [`Model::PARAMETERS`] entry in that
     /// order, each within its bounds.
     fn from_parameters(values: &[f64]) -> Self;

@@ -204,6 +204,9 @@ impl Model<6, 2> for Quadrotor2D {
         }
     }
 
+    /// A rotor's thrust cannot be negative.
+    const CONTROL_MINIMUM: Option<[f64; 2]> = Some([0.0, 0.0]);
+
     /// Hover thrust on both rotors.
     fn rest_controls(&self) -> SVector<f64, 2> {
         SVector::repeat(self.hover_thrust())

@@ -134,6 +134,64 @@ fn the_fallback_and_the_final_gains_do_not_allocate() {
     assert_eq!(during, 0, "{during} allocations: {s:?}");
 }
 
+/// A constrained solve's loops allocate nothing either: a warm solve of
+/// the seed with thrust bounds (box-DDP, no outer loop) allocates nothing
+/// at all, and the Dubins car's augmented Lagrangian (a dozen outer iterations)
+/// nothing between its first iteration and its last, multiplier updates
+/// included. Its final projection, after the loop, does allocate.
+#[test]
+fn a_constrained_solve_does_not_allocate_in_its_loops() {
+    use ilqr::{Constraints, ControlBounds};
+    use nalgebra::SVector;
+    let never = AtomicBool::new(false);
+    let options = Options::default();
+
+    let seed = common::seed_problem(100, 0.05);
+    let bounds = Constraints {
+        control: Some(ControlBounds {
+            lower: SVector::from([0.0, 0.0]),
+            upper: SVector::from([20.0, 20.0]),
+        }),
+        other: Vec::new(),
+    };
+    let hover = common::hover(100);
+    let mut solver = Solver::new(100);
+    let warm = |solver: &mut Solver<6, 2>| {
+        solver
+            .solve_constrained(&seed, &bounds, &hover, &options, &never, &mut |_| {})
+            .unwrap()
+    };
+    warm(&mut solver);
+    let before = allocations();
+    COUNTING.with(|c| c.set(true));
+    let s = warm(&mut solver);
+    COUNTING.with(|c| c.set(false));
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert_eq!(allocations() - before, 0, "{s:?}");
+
+    let (dubins, constraints) = common::dubins();
+    let start = vec![SVector::<f64, 2>::repeat(0.01); 100];
+    let mut solver = Solver::new(100);
+    let run = |solver: &mut Solver<3, 2>, seen: &mut Vec<usize>| {
+        solver
+            .solve_constrained(&dubins, &constraints, &start, &options, &never, &mut |_| {
+                seen.push(allocations())
+            })
+            .unwrap()
+    };
+    // Room for every row, so that recording one allocates nothing.
+    let mut seen = Vec::with_capacity(10_000);
+    run(&mut solver, &mut seen);
+    seen.clear();
+    COUNTING.with(|c| c.set(true));
+    let s = run(&mut solver, &mut seen);
+    COUNTING.with(|c| c.set(false));
+    assert_eq!(s.status, Status::Converged, "{s:?}");
+    assert!(s.outer_iterations > 3 && seen.len() > 20, "{s:?}");
+    let (first, last) = (seen[0], seen[seen.len() - 1]);
+    assert_eq!(last - first, 0, "{s:?}");
+}
+
 /// The box-constrained QP and its feedback gain allocate nothing, on a
 /// problem with a control clamped at each bound and one free.
 #[test]

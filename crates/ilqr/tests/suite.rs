@@ -10,6 +10,7 @@
 
 mod boxqp;
 mod common;
+mod constraints;
 mod derivatives;
 mod integrators;
 mod interruption;

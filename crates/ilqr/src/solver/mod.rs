@@ -64,6 +64,8 @@
 //! own: a loop around it (an augmented Lagrangian's, updating multipliers
 //! in the cost between calls) can call it again, warm.
 
+mod augmented;
+mod constrained;
 mod options;
 mod passes;
 mod report;
@@ -79,8 +81,10 @@ pub use options::Options;
 pub use report::{SolveError, Status, Summary, TraceRow};
 pub use riccati::{RiccatiStep, Value, riccati_step};
 
+use crate::constraint::ControlBounds;
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 use crate::dynamics::DiscreteDynamics;
+use augmented::Augmented;
 use passes::{Backward, Unfinished, all_finite, rollout};
 use state::{LoopState, Model};
 
@@ -93,12 +97,12 @@ use state::{LoopState, Model};
 /// of 5.4e3.
 const ROUND_OFF_FLOOR: f64 = f64::EPSILON * f64::EPSILON;
 
-/// Trace rows reserved before the loop: 10000 rows of 80 B, 800 KB. The
+/// Trace rows reserved before the loop: 10000 rows of 104 B, 1 MB. The
 /// loop allocates only if a solve runs more iterations than that.
 const TRACE_RESERVE: usize = 10_000;
 // The size above, kept true: a field added to `TraceRow` fails here first.
 #[cfg(target_pointer_width = "64")]
-const _: () = assert!(std::mem::size_of::<TraceRow>() == 80);
+const _: () = assert!(std::mem::size_of::<TraceRow>() == 104);
 
 /// A trajectory-optimisation problem: minimise `cost` over `horizon` steps of
 /// `dynamics`, starting from `x0`.
@@ -138,6 +142,18 @@ pub struct Solver<const NX: usize, const NU: usize> {
     K_next: Vec<SMatrix<f64, NU, NX>>,
     d_next: Vec<SVector<f64, NU>>,
     trace: Vec<TraceRow>,
+    /// The control bounds of a constrained solve: the backward pass bounds
+    /// its steps by them and the rollouts clamp to them.
+    bounds: Option<ControlBounds<NU>>,
+    /// The augmented Lagrangian's multipliers, `m` per knot for `N + 1`
+    /// knots, and the next outer iteration's.
+    lambda: Vec<f64>,
+    lambda_next: Vec<f64>,
+    /// The least violating iterate of a constrained solve, with its gains.
+    best_xs: Vec<SVector<f64, NX>>,
+    best_us: Vec<SVector<f64, NU>>,
+    best_K: Vec<SMatrix<f64, NU, NX>>,
+    best_d: Vec<SVector<f64, NU>>,
 }
 
 /// How step 2, the backward pass with μ raised until it completes, ended.
@@ -185,6 +201,26 @@ struct LineSearch {
     expected_reduction: f64,
 }
 
+/// How the solve must end now, if it must: `Cancelled` when `cancel` is
+/// set, else `TimeLimit` when the budget counted from `start` is spent.
+/// Polled once per iteration, between the rollouts of a line search and
+/// inside every pass.
+fn interruption<'a>(
+    cancel: &'a AtomicBool,
+    options: &'a Options,
+    start: Instant,
+) -> impl Fn() -> Option<Status> + 'a {
+    move || {
+        if cancel.load(Ordering::Relaxed) {
+            Some(Status::Cancelled)
+        } else if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
+            Some(Status::TimeLimit)
+        } else {
+            None
+        }
+    }
+}
+
 impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// A solver with buffers for `horizon` steps. Solving a longer horizon
     /// later grows them (once, before the loop).
@@ -203,6 +239,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             K_next: Vec::new(),
             d_next: Vec::new(),
             trace: Vec::new(),
+            bounds: None,
+            lambda: Vec::new(),
+            lambda_next: Vec::new(),
+            best_xs: Vec::new(),
+            best_us: Vec::new(),
+            best_K: Vec::new(),
+            best_d: Vec::new(),
         };
         s.resize(horizon);
         s
@@ -300,6 +343,39 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         C: Cost<NX, NU>,
     {
         let start = Instant::now();
+        self.bounds = None;
+        let cost = self.prepare(problem, &problem.cost, u_init, options)?;
+
+        let interrupted = interruption(cancel, options, start);
+        let mut state = LoopState::new(options, cost);
+        let (dynamics, cost) = (&problem.dynamics, &problem.cost);
+        let status = self.iterate(
+            dynamics,
+            cost,
+            options,
+            &mut state,
+            (start, &interrupted),
+            (observe, &|_, _| {}),
+        );
+        self.least_regularized_gains(dynamics, cost, options, status, &mut state, &interrupted);
+        Ok(state.summary(status, start.elapsed()))
+    }
+
+    /// Everything before the loop, where all allocation happens: checks
+    /// the input, sizes the buffers for `problem.horizon`, loads `u_init`
+    /// (clamped into the control bounds, if any) and rolls it out under
+    /// `cost`; returns the initial cost.
+    fn prepare<D, C, C2>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        cost: &C2,
+        u_init: &[SVector<f64, NU>],
+        options: &Options,
+    ) -> Result<f64, SolveError>
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C2: Cost<NX, NU>,
+    {
         let n = problem.horizon;
         if n == 0 {
             return Err(SolveError::EmptyHorizon);
@@ -314,7 +390,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         // Everything that may allocate happens here, before the loop.
         self.resize(n);
         self.trace.clear();
-        // Up to TRACE_RESERVE rows up front (80 B each): reserving
+        // Up to TRACE_RESERVE rows up front (104 B each): reserving
         // `max_iterations` itself would let a large cap, meant to leave the
         // stop to a time limit, abort the process on allocation. A solve that
         // runs past the reserve grows the trace in the loop, by doubling.
@@ -325,7 +401,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         self.d[..n].fill(SVector::zeros());
 
         self.xs[0] = problem.x0;
-        let cost = rollout(&problem.dynamics, &problem.cost, &mut self.xs, &self.us);
+        if let Some(b) = &self.bounds {
+            for u in &mut self.us[..n] {
+                *u = b.clamp(u);
+            }
+        }
+        let cost = rollout(&problem.dynamics, cost, &mut self.xs, &self.us);
         // States too, not only the cost: a cost that does not read every
         // state component (control effort only, say) stays finite over a
         // NaN state.
@@ -335,37 +416,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             return Err(SolveError::InitialRolloutNotFinite { knot });
         }
 
-        // How the solve must end now, if it must: `Cancelled` when the flag
-        // is set, else `TimeLimit` when the budget is spent. Polled once per
-        // iteration, between the rollouts of a line search and inside every
-        // pass.
-        let interrupted = || {
-            if cancel.load(Ordering::Relaxed) {
-                Some(Status::Cancelled)
-            } else if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
-                Some(Status::TimeLimit)
-            } else {
-                None
-            }
-        };
-        let mut state = LoopState::new(options, cost);
-        let (dynamics, cost) = (&problem.dynamics, &problem.cost);
-        let status = self.iterate(
-            dynamics,
-            cost,
-            options,
-            &mut state,
-            (start, &interrupted),
-            observe,
-        );
-        self.least_regularized_gains(dynamics, cost, options, status, &mut state, &interrupted);
-        Ok(state.summary(status, start.elapsed()))
+        Ok(cost)
     }
 
     /// Steps 1–5 from the nominal trajectory in the workspace until a stop;
     /// returns how the solve ended. Each accepted step replaces the nominal
     /// trajectory, and each iteration adds one row to the trace, its time
-    /// counted from `start`.
+    /// counted from `start`, filled in further by `annotate` (an outer
+    /// loop's iteration, violation and penalty) and then passed to
+    /// `observe`.
     fn iterate<D, C>(
         &mut self,
         dynamics: &D,
@@ -373,7 +432,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         options: &Options,
         state: &mut LoopState,
         (start, interrupted): (Instant, &impl Fn() -> Option<Status>),
-        observe: &mut impl FnMut(&TraceRow),
+        (observe, annotate): (&mut impl FnMut(&TraceRow), &impl Fn(&Self, &mut TraceRow)),
     ) -> Status
     where
         D: DiscreteDynamics<NX, NU>,
@@ -414,6 +473,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 feedforward_norm: self.feedforward_norm(),
                 convex_model: state.model == Model::Convex,
                 elapsed: Duration::ZERO,
+                outer_iteration: 0,
+                constraint_violation: 0.0,
+                penalty: 0.0,
             };
             let search = self.line_search(dynamics, cost, options, state.cost, &bw, interrupted);
 
@@ -433,12 +495,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     // The nominal trajectory is unchanged, so the gains of
                     // this iteration's backward pass still describe it.
                     row.elapsed = start.elapsed();
+                    annotate(self, &mut row);
                     self.trace.push(row);
                     observe(&row);
                     return status;
                 }
             }
             row.elapsed = start.elapsed();
+            annotate(self, &mut row);
             self.trace.push(row);
             observe(&row);
             // Where the model in use can do no more, the next one takes
@@ -542,13 +606,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 };
             }
         };
-        if options
+        if state
             .cost_lower_bound
             .is_some_and(|lb| state.cost - lb <= ROUND_OFF_FLOOR * (state.initial_cost - lb))
         {
             return Verdict::Stop(Status::Converged);
         }
-        let (tolerance, j) = (options.tolerance, state.cost);
+        let (tolerance, j) = (state.tolerance, state.cost);
         // The last full step gained less than the tolerance, and the model at
         // the new iterate agrees that a full step would gain no more. The
         // step alone is not enough: in a slow descent one full step can gain

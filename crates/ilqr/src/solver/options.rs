@@ -137,6 +137,25 @@ pub struct Options {
     /// (IPOPT started there stays there). Each backward pass costs a
     /// little more (one curvature per knot).
     pub second_order: bool,
+    /// A constrained solve converges only with every constraint met to
+    /// this, in the constraint's own units (m, rad, …). Default 1e-6.
+    pub constraint_tolerance: f64,
+    /// The augmented Lagrangian's first penalty ρ. Default 1 (ALTRO's).
+    pub penalty_initial: f64,
+    /// The factor ρ grows by after each outer iteration that ends above
+    /// the tolerance. Default 10 (ALTRO's).
+    pub penalty_scaling: f64,
+    /// The largest ρ. Default 1e8 (ALTRO's): where the violation no longer
+    /// falls at this penalty, the solve ends [`Status::Infeasible`].
+    pub penalty_max: f64,
+    /// The most outer iterations. Default 30 (ALTRO's).
+    pub max_outer_iterations: usize,
+    /// The relative tolerance of the inner solves until the violation is
+    /// first under [`Options::constraint_tolerance`]: outer iterations
+    /// whose multipliers will change anyway are not solved tightly (ALTRO's
+    /// intermediate tolerance). The rest use [`Options::tolerance`].
+    /// Default 1e-4.
+    pub intermediate_tolerance: f64,
 }
 
 impl Default for Options {
@@ -156,6 +175,12 @@ impl Default for Options {
             cost_lower_bound: None,
             convex_fallback: true,
             second_order: false,
+            constraint_tolerance: 1e-6,
+            penalty_initial: 1.0,
+            penalty_scaling: 10.0,
+            penalty_max: 1e8,
+            max_outer_iterations: 30,
+            intermediate_tolerance: 1e-4,
         }
     }
 }

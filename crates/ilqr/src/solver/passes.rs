@@ -5,7 +5,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
-use super::riccati::riccati_step_into;
+use super::riccati::{Boxed, riccati_step_into};
 use super::state::Model;
 use super::{Solver, Status, Value};
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
@@ -159,6 +159,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 }
                 None => &self.stage[k],
             };
+            // Control bounds: the step is bounded so that ū + d stays in
+            // them, starting from the last pass's step.
+            let boxed = self.bounds.map(|b| Boxed {
+                lower: b.lower - self.us[k],
+                upper: b.upper - self.us[k],
+                start: self.d[k],
+            });
             let (a, b) = riccati_step_into(
                 &self.A[k],
                 &self.B[k],
@@ -166,6 +173,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 &next,
                 mu,
                 sparsity.as_ref(),
+                boxed.as_ref(),
                 &mut self.K_next[k],
                 &mut self.d_next[k],
                 &mut here,
@@ -205,7 +213,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 return Err(status);
             }
             let x = self.xs_new[k];
-            let u = self.us[k] + self.d[k] * alpha + self.K[k] * (x - self.xs[k]);
+            let mut u = self.us[k] + self.d[k] * alpha + self.K[k] * (x - self.xs[k]);
+            if let Some(b) = &self.bounds {
+                u = b.clamp(&u);
+            }
             self.us_new[k] = u;
             total += cost.stage(k, &x, &u);
             let next = dynamics.step(&x, &u);

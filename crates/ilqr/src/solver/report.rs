@@ -26,6 +26,13 @@ pub enum Status {
     TimeLimit,
     /// The cancellation flag was set.
     Cancelled,
+    /// A constrained solve ([`Solver::solve_constrained`]): the
+    /// augmented Lagrangian's outer loop could not bring the constraints'
+    /// violation under [`Options::constraint_tolerance`] (its penalty at
+    /// [`Options::penalty_max`] with the violation no longer falling, or
+    /// [`Options::max_outer_iterations`] spent). The trajectory returned
+    /// is the least violating one found ([`Summary::constraint_violation`]).
+    Infeasible,
     /// Regularisation passed `mu_max`: neither the backward pass nor the line
     /// search could make progress, with the exact Hessian nor (where
     /// `convex_fallback` is on and the cost has obstacles) with the convex
@@ -66,6 +73,16 @@ pub struct TraceRow {
     pub convex_model: bool,
     /// Time since the solve started.
     pub elapsed: Duration,
+    /// A constrained solve's outer iteration (1-based) this iteration
+    /// belongs to; 0 in a solve without constraints.
+    pub outer_iteration: usize,
+    /// The largest violation of the hard constraints (other than control
+    /// bounds, which hold exactly) after this iteration; 0 without
+    /// constraints.
+    pub constraint_violation: f64,
+    /// The augmented Lagrangian's penalty ρ in this iteration; 0 without
+    /// constraints.
+    pub penalty: f64,
 }
 
 /// What a solve reports besides the trajectory, which stays in the [`Solver`].
@@ -124,6 +141,13 @@ pub struct Summary {
     /// exact Hessian gave the gains, and whenever
     /// [`Summary::convexified_after`] is `None`.
     pub gains_convex: bool,
+    /// The largest violation of the constraints at the returned
+    /// trajectory, in their own units; 0 without constraints. Control
+    /// bounds hold exactly and are not counted.
+    pub constraint_violation: f64,
+    /// Outer iterations of the augmented Lagrangian; 0 without
+    /// constraints.
+    pub outer_iterations: usize,
 }
 
 /// Input the solver cannot work with.
@@ -137,6 +161,12 @@ pub enum SolveError {
         expected: usize,
         /// What was given.
         got: usize,
+    },
+    /// The control bounds of component `index` admit no value (`lower >
+    /// upper`, a NaN, `lower = +∞` or `upper = −∞`).
+    InvalidControlBounds {
+        /// The control component.
+        index: usize,
     },
     /// The rollout of the initial controls produced a NaN or infinite state or
     /// cost, so there is nothing to improve on.
@@ -153,6 +183,10 @@ impl std::fmt::Display for SolveError {
             Self::ControlsLength { expected, got } => {
                 write!(f, "expected {expected} initial controls, got {got}")
             }
+            Self::InvalidControlBounds { index } => write!(
+                f,
+                "the bounds of control {index} admit no value (lower above upper, or NaN)"
+            ),
             Self::InitialRolloutNotFinite { knot } => write!(
                 f,
                 "the initial controls drive the state or cost to NaN/infinity at step {knot}"

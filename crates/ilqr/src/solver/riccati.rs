@@ -3,6 +3,7 @@
 
 use nalgebra::{SMatrix, SVector};
 
+use crate::boxqp::{BoxQpOptions, solve_box_qp};
 use crate::cost::StageExpansion;
 use crate::dynamics::Sparsity;
 use crate::kernels::{
@@ -19,6 +20,16 @@ pub struct Value<const NX: usize> {
     pub V_x: SVector<f64, NX>,
     /// Hessian `V_xx` (the paper's `S`).
     pub V_xx: SMatrix<f64, NX, NX>,
+}
+
+/// The bounds on one knot's step `d` in a control-limited backward pass:
+/// the control bounds less the nominal control, and where the box QP
+/// starts (the previous pass's `d`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(super) struct Boxed<const NU: usize> {
+    pub(super) lower: SVector<f64, NU>,
+    pub(super) upper: SVector<f64, NU>,
+    pub(super) start: SVector<f64, NU>,
 }
 
 /// What one knot of the backward pass produces.
@@ -93,6 +104,7 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
         next,
         mu,
         sparsity,
+        None,
         &mut out.K,
         &mut out.d,
         &mut out.value,
@@ -106,6 +118,11 @@ pub fn riccati_step<const NX: usize, const NU: usize>(
 /// copies nothing: `K`, `d` go straight into the solver's gain buffers and
 /// `value` into the other half of a ping-pong pair. Returns `(dᵀQ_u,
 /// ½dᵀQ_uu d)`. The outputs are unspecified when it returns `None`.
+///
+/// With `boxed`, the step `d` is bounded (box-DDP, Tassa et al. 2014):
+/// `d` minimises `½ dᵀ(Q_uu + μI)d + dᵀQ_u` over `lower ≤ d ≤ upper` by
+/// [`solve_box_qp`], warm-started at `start`, and `K` is the free set's
+/// gain, zero on the rows of clamped controls.
 #[allow(non_snake_case, clippy::too_many_arguments)]
 #[inline(always)]
 pub(super) fn riccati_step_into<const NX: usize, const NU: usize>(
@@ -115,6 +132,7 @@ pub(super) fn riccati_step_into<const NX: usize, const NU: usize>(
     next: &Value<NX>,
     mu: f64,
     sparsity: Option<&Sparsity<NX, NU>>,
+    boxed: Option<&Boxed<NU>>,
     K_out: &mut SMatrix<f64, NU, NX>,
     d_out: &mut SVector<f64, NU>,
     value: &mut Value<NX>,
@@ -170,9 +188,30 @@ pub(super) fn riccati_step_into<const NX: usize, const NU: usize>(
     for (i, col) in Q_uu_reg.iter_mut().enumerate() {
         col[i] += mu;
     }
-    let (L, D_inv) = ldlt(&Q_uu_reg)?;
-    let d = ldlt_solve_vec(&L, &D_inv, &Q_u).map(|x| -x);
-    let Kt = ldlt_solve_right(&L, &D_inv, &Q_xu).map(|col| col.map(|x| -x));
+    let (d, Kt) = match boxed {
+        None => {
+            let (L, D_inv) = ldlt(&Q_uu_reg)?;
+            let d = ldlt_solve_vec(&L, &D_inv, &Q_u).map(|x| -x);
+            let Kt = ldlt_solve_right(&L, &D_inv, &Q_xu).map(|col| col.map(|x| -x));
+            (d, Kt)
+        }
+        Some(b) => {
+            let h = SMatrix::<f64, NU, NU>::from_fn(|i, j| Q_uu_reg[j][i]);
+            let g = SVector::<f64, NU>::from(Q_u);
+            let qp = solve_box_qp(
+                &h,
+                &g,
+                &b.lower,
+                &b.upper,
+                &b.start,
+                &BoxQpOptions::default(),
+            )
+            .ok()?;
+            let Q_ux = SMatrix::<f64, NU, NX>::from_fn(|i, j| Q_xu[i][j]);
+            let K = qp.feedback_gain(&Q_ux)?;
+            (qp.u.data.0[0], transpose(&K.data.0))
+        }
+    };
     if !d.iter().chain(Kt.iter().flatten()).all(|x| x.is_finite()) {
         return None;
     }

@@ -100,6 +100,12 @@ pub(super) struct LoopState {
     pub(super) gains: Gains,
     /// Iterations completed when the convex model was first switched to.
     pub(super) convexified_after: Option<usize>,
+    /// The convergence tolerance in force: [`Options::tolerance`], or a
+    /// constrained solve's looser one for its intermediate inner solves.
+    pub(super) tolerance: f64,
+    /// The cost's lower bound in force ([`Options::cost_lower_bound`];
+    /// none for an augmented Lagrangian's inner solves).
+    pub(super) cost_lower_bound: Option<f64>,
 }
 
 impl LoopState {
@@ -127,6 +133,8 @@ impl LoopState {
                 convex: false,
             },
             convexified_after: None,
+            tolerance: options.tolerance,
+            cost_lower_bound: options.cost_lower_bound,
         }
     }
 
@@ -169,7 +177,7 @@ impl LoopState {
         // iteration's model test decides.
         self.small_full_step = alpha == 1.0
             && self.mu <= options.mu_converged_max
-            && actual <= options.tolerance * self.cost.abs();
+            && actual <= self.tolerance * self.cost.abs();
         self.cost = cost;
         self.moved = true;
         self.stale = true;
@@ -297,6 +305,8 @@ impl LoopState {
             gains_regularization: self.gains.mu,
             convexified_after: self.convexified_after,
             gains_convex: self.gains.convex,
+            constraint_violation: 0.0,
+            outer_iterations: 0,
         }
     }
 }

@@ -1,10 +1,12 @@
-//! The seed scenario of the paper, built directly on the core crate, shared
-//! by the integration tests and benchmarks, and the tests' random generator.
+//! The seed scenario of the paper and ALTRO's three-obstacle Dubins car,
+//! built directly on the core crate, shared by the integration tests and
+//! benchmarks, and the tests' random generator.
 #![allow(dead_code)]
 
 use ilqr::{
-    ControlEffort, Euler, ExpObstacle, Objective, Problem, Quadrotor2D, StateTracking,
-    TerminalTracking,
+    Clearance, Constraint, Constraints, ControlBounds, ControlEffort, Euler, ExpObstacle,
+    GoalTolerance, Objective, Problem, Quadrotor2D, Region, Rk4, Shape, StateTracking,
+    TerminalTracking, Unicycle,
 };
 use nalgebra::{SVector, Vector2};
 
@@ -77,4 +79,53 @@ impl Lcg {
     pub fn vector<const N: usize>(&mut self, lo: f64, hi: f64) -> SVector<f64, N> {
         SVector::from_fn(|_, _| self.range(lo, hi))
     }
+}
+
+/// ALTRO's three-obstacle Dubins car (Altro.jl `problems/dubins_car.jl`).
+pub fn dubins() -> (
+    Problem<Rk4<Unicycle>, Objective<3, 2>, 3>,
+    Constraints<3, 2>,
+) {
+    let goal = SVector::from([3.0, 3.0, 0.0]);
+    let cost = Objective::new()
+        .with_stage(StateTracking {
+            goal,
+            weights: SVector::repeat(1.0),
+        })
+        .with_stage(ControlEffort {
+            weights: Vector2::repeat(0.5),
+        })
+        .with_terminal(TerminalTracking {
+            goal,
+            weights: SVector::repeat(10.0),
+        });
+    let problem = Problem {
+        dynamics: Rk4 {
+            model: Unicycle,
+            dt: 0.05,
+        },
+        cost,
+        x0: SVector::zeros(),
+        horizon: 100,
+    };
+    let mut other: Vec<Box<dyn Constraint<3, 2>>> = Vec::new();
+    for c in [0.75, 1.5, 2.25] {
+        other.push(Box::new(Clearance {
+            region: Region {
+                center: Vector2::new(c, c),
+                shape: Shape::Circle { radius: 0.425 },
+            },
+            clearance: 0.0,
+            position: (0, 1),
+        }));
+    }
+    other.push(Box::new(GoalTolerance::new(goal, &SVector::zeros())));
+    let constraints = Constraints {
+        control: Some(ControlBounds {
+            lower: SVector::from([0.0, -3.0]),
+            upper: SVector::from([3.0, 3.0]),
+        }),
+        other,
+    };
+    (problem, constraints)
 }

@@ -1,0 +1,179 @@
+//! The augmented Lagrangian of a constrained problem (ALTRO's outer loop):
+//! the cost the inner iLQR solves minimise, and the multiplier update
+//! between them.
+//!
+//! Each component `c ≤ 0` adds the Powell–Hestenes–Rockafellar term
+//! `max(0, λ + ρc)² / 2ρ` (an equality `c = 0` adds `(λ + ρc)² / 2ρ`):
+//! smooth, zero where the constraint is slack and its multiplier zero, and
+//! never negative, so a cost bounded below by 0 stays so. Its gradient is
+//! `max(0, λ + ρc)·∇c`, and its Hessian is taken as `ρ∇c∇cᵀ` where the term
+//! is active (Gauss–Newton: the constraint's own curvature is dropped, as
+//! ALTRO does), which is positive semi-definite. Between inner solves the
+//! multiplier takes the gradient's factor, `λ ← max(0, λ + ρc)`, and ρ
+//! grows.
+
+use nalgebra::SVector;
+
+use crate::constraint::{Constraints, Knot};
+use crate::cost::{Cost, StageExpansion, TerminalExpansion};
+
+/// Largest multiplier: keeps a constraint that cannot be met from driving
+/// its multiplier, and the cost, to overflow.
+pub(super) const MAX_MULTIPLIER: f64 = 1e8;
+
+/// The base cost plus the penalty terms at multipliers `lambda` and
+/// penalty `rho`. `lambda` holds `m` multipliers per knot, knots `0..=N`
+/// (the terminal state's last), components in constraint order.
+pub(super) struct Augmented<'a, C, const NX: usize, const NU: usize> {
+    pub(super) base: &'a C,
+    pub(super) constraints: &'a Constraints<NX, NU>,
+    pub(super) lambda: &'a [f64],
+    pub(super) m: usize,
+    pub(super) n: usize,
+    pub(super) rho: f64,
+}
+
+/// `λ + ρc`, cut at 0 for an inequality: the multiplier the update gives,
+/// and the penalty's gradient factor.
+#[inline]
+fn shifted(lambda: f64, rho: f64, c: f64, equality: bool) -> f64 {
+    let s = lambda + rho * c;
+    if equality { s } else { s.max(0.0) }
+}
+
+impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
+    /// Calls `f(multiplier index, constraint, component)` for each
+    /// component that applies at `knot`.
+    #[inline]
+    fn components(
+        &self,
+        knot: Knot,
+        mut f: impl FnMut(usize, &dyn crate::constraint::Constraint<NX, NU>, usize),
+    ) {
+        let k = match knot {
+            Knot::Stage(k) => k,
+            Knot::Terminal => self.n,
+        };
+        let mut at = k * self.m;
+        for c in &self.constraints.other {
+            let dim = c.dim();
+            if c.applies(knot) {
+                for i in 0..dim {
+                    f(at + i, c.as_ref(), i);
+                }
+            }
+            at += dim;
+        }
+    }
+
+    fn penalty(&self, knot: Knot, x: &SVector<f64, NX>, u: &SVector<f64, NU>) -> f64 {
+        let mut total = 0.0;
+        self.components(knot, |at, c, i| {
+            let s = shifted(
+                self.lambda[at],
+                self.rho,
+                c.value(i, x, u),
+                c.is_equality(i),
+            );
+            total += s * s / (2.0 * self.rho);
+        });
+        total
+    }
+
+    fn expand_penalty(
+        &self,
+        knot: Knot,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.components(knot, |at, c, i| {
+            // Most components are slack with a zero multiplier: their term
+            // is zero, and only its value is needed to see that.
+            let equality = c.is_equality(i);
+            if !equality && shifted(self.lambda[at], self.rho, c.value(i, x, u), false) == 0.0 {
+                return;
+            }
+            let (value, c_x, c_u) = c.linearize(i, x, u);
+            let s = shifted(self.lambda[at], self.rho, value, equality);
+            e.l_x += c_x * s;
+            e.l_u += c_u * s;
+            e.l_xx += c_x * c_x.transpose() * self.rho;
+            e.l_uu += c_u * c_u.transpose() * self.rho;
+            e.l_ux += c_u * c_x.transpose() * self.rho;
+        });
+    }
+
+    /// The multipliers after an inner solve that ended at `(states,
+    /// controls)`: `λ ← max(0, λ + ρc)` (`λ + ρc` for an equality), at most
+    /// [`MAX_MULTIPLIER`] in size.
+    pub(super) fn update(
+        &self,
+        states: &[SVector<f64, NX>],
+        controls: &[SVector<f64, NU>],
+        out: &mut [f64],
+    ) {
+        for k in 0..=self.n {
+            let (knot, u) = if k < self.n {
+                (Knot::Stage(k), controls[k])
+            } else {
+                (Knot::Terminal, SVector::zeros())
+            };
+            self.components(knot, |at, c, i| {
+                let s = shifted(
+                    self.lambda[at],
+                    self.rho,
+                    c.value(i, &states[k], &u),
+                    c.is_equality(i),
+                );
+                out[at] = s.clamp(-MAX_MULTIPLIER, MAX_MULTIPLIER);
+            });
+        }
+    }
+}
+
+impl<C: Cost<NX, NU>, const NX: usize, const NU: usize> Cost<NX, NU> for Augmented<'_, C, NX, NU> {
+    fn stage(&self, k: usize, x: &SVector<f64, NX>, u: &SVector<f64, NU>) -> f64 {
+        self.base.stage(k, x, u) + self.penalty(Knot::Stage(k), x, u)
+    }
+
+    fn stage_expand(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.base.stage_expand(k, x, u, e);
+        self.expand_penalty(Knot::Stage(k), x, u, e);
+    }
+
+    /// The penalty's Gauss–Newton Hessian is positive semi-definite
+    /// already: only the base cost's curvature is dropped.
+    fn stage_expand_convex(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        self.base.stage_expand_convex(k, x, u, e);
+        self.expand_penalty(Knot::Stage(k), x, u, e);
+    }
+
+    fn has_convex_approximation(&self) -> bool {
+        self.base.has_convex_approximation()
+    }
+
+    fn terminal(&self, x: &SVector<f64, NX>) -> f64 {
+        self.base.terminal(x) + self.penalty(Knot::Terminal, x, &SVector::zeros())
+    }
+
+    fn terminal_expand(&self, x: &SVector<f64, NX>, e: &mut TerminalExpansion<NX>) {
+        self.base.terminal_expand(x, e);
+        let mut stage = StageExpansion::zeros();
+        self.expand_penalty(Knot::Terminal, x, &SVector::zeros(), &mut stage);
+        e.l_x += stage.l_x;
+        e.l_xx += stage.l_xx;
+    }
+}

@@ -1,0 +1,402 @@
+//! [`Solver::solve_constrained`]: the augmented-Lagrangian outer loop
+//! (ALTRO's) around the iLQR loop, with control bounds met by the
+//! backward pass itself (box-DDP).
+//!
+//! Each outer iteration runs the iLQR loop, warm, on the base cost plus
+//! the penalty terms of `augmented` at the current multipliers `λ` and
+//! penalty ρ; then, unless the constraints hold to
+//! [`Options::constraint_tolerance`] at a tight inner solve, it updates
+//! `λ` and multiplies ρ by [`Options::penalty_scaling`] up to
+//! [`Options::penalty_max`]. The solve ends:
+//!
+//! * `Converged`: an inner solve converged at [`Options::tolerance`] with
+//!   the violation under the tolerance. Inner solves before the violation
+//!   first gets there use the looser [`Options::intermediate_tolerance`];
+//! * `Infeasible`: at the largest penalty the violation fell by less than
+//!   1% over an outer iteration, or the outer iterations ran out. The
+//!   least violating iterate found is returned;
+//! * `MaxIterations`, `TimeLimit`, `Cancelled`: as for an unconstrained
+//!   solve, counted over all the inner solves together;
+//! * `NoProgress`: an inner solve at the tight tolerance made no progress
+//!   where the violation is already under the tolerance.
+//!
+//! The returned cost is the base cost, without penalties.
+
+use std::sync::atomic::AtomicBool;
+use std::time::Instant;
+
+use nalgebra::SVector;
+
+use super::passes::rollout;
+use super::state::LoopState;
+use super::{Augmented, Options, Problem, SolveError, Solver, Status, Summary, TraceRow};
+use crate::constraint::Constraints;
+use crate::cost::Cost;
+use crate::dynamics::DiscreteDynamics;
+
+/// The violation must fall by at least this fraction per outer iteration at
+/// the largest penalty, or the problem counts as infeasible.
+const STALL: f64 = 0.01;
+
+/// The largest violation the projection starts from; below it the inner
+/// solves are tight.
+const PROJECT_BELOW: f64 = 1e-4;
+
+/// The most Gauss–Newton steps of the final projection.
+const PROJECTION_STEPS: usize = 8;
+
+/// The most constraint rows the projection handles (its system is dense in
+/// them).
+const PROJECTION_ROWS: usize = 1000;
+
+/// An outer iteration whose violation is at most this fraction of the last
+/// one's keeps the penalty: its multipliers are doing the work (the
+/// classic rule of augmented-Lagrangian methods, Nocedal & Wright §17.4).
+const SUFFICIENT: f64 = 0.25;
+
+impl<const NX: usize, const NU: usize> Solver<NX, NU> {
+    /// Solve `problem` subject to `constraints` (see the
+    /// [module documentation](self)). Control bounds hold exactly in the
+    /// returned controls (the initial ones are clamped into them first),
+    /// and the returned states are their rollout. Without any constraint
+    /// this is [`Solver::solve_observed`].
+    pub fn solve_constrained<D, C>(
+        &mut self,
+        problem: &Problem<D, C, NX>,
+        constraints: &Constraints<NX, NU>,
+        u_init: &[SVector<f64, NU>],
+        options: &Options,
+        cancel: &AtomicBool,
+        observe: &mut impl FnMut(&TraceRow),
+    ) -> Result<Summary, SolveError>
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        if constraints.is_empty() {
+            return self.solve_observed(problem, u_init, options, cancel, observe);
+        }
+        if let Some(b) = &constraints.control
+            && let Some(index) = (0..NU).find(|&i| {
+                let (lo, hi) = (b.lower[i], b.upper[i]);
+                !(lo <= hi && lo < f64::INFINITY && hi > f64::NEG_INFINITY)
+            })
+        {
+            return Err(SolveError::InvalidControlBounds { index });
+        }
+        let start = Instant::now();
+        let n = problem.horizon;
+        let m = constraints.components();
+        self.bounds = constraints.control;
+        let initial_cost = self.prepare(problem, &problem.cost, u_init, options)?;
+        // The rest of what the outer loop needs, before it.
+        for v in [&mut self.lambda, &mut self.lambda_next] {
+            v.clear();
+            v.resize((n + 1) * m, 0.0);
+        }
+        self.best_xs.clone_from(&self.xs);
+        self.best_us.clone_from(&self.us);
+        self.best_K.clone_from(&self.K);
+        self.best_d.clone_from(&self.d);
+        let loose = options.tolerance.max(options.intermediate_tolerance);
+
+        let interrupted = super::interruption(cancel, options, start);
+        let dynamics = &problem.dynamics;
+        let mut rho = options.penalty_initial;
+        // Control bounds alone need no outer loop: one tight solve.
+        let mut tight = m == 0;
+        let mut outer = 0;
+        let mut iterations = 0;
+        let mut previous = f64::INFINITY;
+        let mut best = (f64::INFINITY, 0usize);
+        let mut last_summary;
+        let status = loop {
+            outer += 1;
+            let lambda = std::mem::take(&mut self.lambda);
+            let augmented = Augmented {
+                base: &problem.cost,
+                constraints,
+                lambda: &lambda,
+                m,
+                n,
+                rho,
+            };
+            // The iterate's cost under this outer iteration's multipliers.
+            let mut xs = std::mem::take(&mut self.xs);
+            let cost = rollout(dynamics, &augmented, &mut xs, &self.us[..n]);
+            self.xs = xs;
+            let mut state = LoopState::new(options, cost);
+            state.iterations = iterations;
+            state.tolerance = if tight { options.tolerance } else { loose };
+            // With the penalties added, the caller's lower bound on the
+            // cost is not the inner problems': they converge by the
+            // gradient test alone.
+            state.cost_lower_bound = None;
+            let annotate = |s: &Self, row: &mut TraceRow| {
+                row.outer_iteration = outer;
+                row.penalty = rho;
+                row.constraint_violation = constraints.violation(&s.xs, &s.us);
+            };
+            let inner = self.iterate(
+                dynamics,
+                &augmented,
+                options,
+                &mut state,
+                (start, &interrupted),
+                (&mut *observe, &annotate),
+            );
+            iterations = state.iterations;
+            let violation = constraints.violation(&self.xs, &self.us);
+            if violation < best.0 {
+                best = (violation, outer);
+                self.best_xs.copy_from_slice(&self.xs);
+                self.best_us.copy_from_slice(&self.us);
+                self.best_K.copy_from_slice(&self.K);
+                self.best_d.copy_from_slice(&self.d);
+            }
+            let feasible = violation <= options.constraint_tolerance;
+            let near = violation <= PROJECT_BELOW;
+            // The multipliers no longer shrink the violation: what is left
+            // is the inner problems' stiffness, not the multipliers' error.
+            let stalled = violation > SUFFICIENT * previous;
+            let stop = match inner {
+                Status::TimeLimit | Status::Cancelled | Status::MaxIterations => Some(inner),
+                Status::Converged if feasible && tight => Some(Status::Converged),
+                Status::NoProgress if feasible && tight => Some(Status::NoProgress),
+                // A tight inner solve came close and the multiplier update
+                // stopped helping: the multipliers are about right, and the
+                // projection closes the last gap at a cost change of about
+                // λ·violation, where more outer iterations would stiffen
+                // the inner problems past what their line searches resolve.
+                Status::Converged | Status::NoProgress
+                    if tight
+                        && near
+                        && stalled
+                        && self.project(dynamics, constraints, options.constraint_tolerance) =>
+                {
+                    self.gains_after_projection(dynamics, &augmented, options, &mut state);
+                    Some(Status::Converged)
+                }
+                _ if outer >= options.max_outer_iterations
+                    || (rho >= options.penalty_max && violation > (1.0 - STALL) * previous) =>
+                {
+                    // The outer loop can do no more. Where it came close,
+                    // the projection may finish the job.
+                    if near && self.project(dynamics, constraints, options.constraint_tolerance) {
+                        self.gains_after_projection(dynamics, &augmented, options, &mut state);
+                        Some(Status::Converged)
+                    } else {
+                        Some(Status::Infeasible)
+                    }
+                }
+                _ => None,
+            };
+            if let Some(status) = stop {
+                self.least_regularized_gains(
+                    dynamics,
+                    &augmented,
+                    options,
+                    status,
+                    &mut state,
+                    &interrupted,
+                );
+                last_summary = state.summary(status, start.elapsed());
+                self.lambda = lambda;
+                break status;
+            }
+            if near {
+                // Close to feasible: solve tightly from here on, so that a
+                // projection starts from an accurate minimum.
+                tight = true;
+            }
+            if !feasible && stalled {
+                // The multipliers alone did not shrink the violation
+                // enough: the penalty grows. Growing it every outer
+                // iteration instead (ALTRO's default) conditions the inner
+                // problems so badly at 1e6 and beyond that their line
+                // searches fail (the Dubins car stalls at 1.2e-5).
+                rho = (rho * options.penalty_scaling).min(options.penalty_max);
+            }
+            augmented.update(&self.xs, &self.us, &mut self.lambda_next);
+            previous = violation;
+            self.lambda = lambda;
+            std::mem::swap(&mut self.lambda, &mut self.lambda_next);
+        };
+        if status == Status::Infeasible && best.1 != outer {
+            // An earlier outer iteration violated the constraints least.
+            self.xs.copy_from_slice(&self.best_xs);
+            self.us.copy_from_slice(&self.best_us);
+            self.K.copy_from_slice(&self.best_K);
+            self.d.copy_from_slice(&self.best_d);
+        }
+        let mut xs = std::mem::take(&mut self.xs);
+        last_summary.cost = rollout(dynamics, &problem.cost, &mut xs, &self.us[..n]);
+        self.xs = xs;
+        last_summary.initial_cost = initial_cost;
+        last_summary.constraint_violation = constraints.violation(&self.xs, &self.us);
+        last_summary.outer_iterations = outer;
+        last_summary.solve_time = start.elapsed();
+        Ok(last_summary)
+    }
+
+    /// The final projection: Gauss–Newton steps that move the controls by
+    /// the least amount (in the 2-norm) that zeroes the linearised
+    /// near-active constraints (`c > −tolerance`, and every equality), the
+    /// states following through the linearised dynamics, with the
+    /// controls at a bound held there. Each step is rolled out through the
+    /// nonlinear dynamics and kept where it lowers the violation (halved up
+    /// to 4 times otherwise). Whether the violation ends under
+    /// `tolerance`.
+    ///
+    /// It runs once, after the outer loop, where the augmented Lagrangian
+    /// has come within [`PROJECT_BELOW`] but its inner problems are too
+    /// stiff (the penalty at 1e6 and more) for their line searches to
+    /// gain the last digits. It allocates (its system's size depends on the
+    /// active set); the iteration loop does not.
+    #[allow(non_snake_case)]
+    fn project<D: DiscreteDynamics<NX, NU>>(
+        &mut self,
+        dynamics: &D,
+        constraints: &Constraints<NX, NU>,
+        tolerance: f64,
+    ) -> bool {
+        use nalgebra::{DMatrix, DVector};
+        let n = self.us.len();
+        let mut violation = constraints.violation(&self.xs, &self.us);
+        for _ in 0..PROJECTION_STEPS {
+            if violation <= 0.1 * tolerance {
+                break;
+            }
+            for k in 0..n {
+                (self.A[k], self.B[k]) = dynamics.linearize(&self.xs[k], &self.us[k]);
+            }
+            // The rows: each near-active component's value and gradients.
+            let mut rows = Vec::new();
+            for c in &constraints.other {
+                for k in 0..=n {
+                    let (knot, u) = if k < n {
+                        (crate::constraint::Knot::Stage(k), self.us[k])
+                    } else {
+                        (crate::constraint::Knot::Terminal, SVector::zeros())
+                    };
+                    if !c.applies(knot) {
+                        continue;
+                    }
+                    for i in 0..c.dim() {
+                        let (value, c_x, c_u) = c.linearize(i, &self.xs[k], &u);
+                        if c.is_equality(i) || value > -tolerance {
+                            rows.push((k, value, c_x, c_u));
+                        }
+                    }
+                }
+            }
+            if rows.is_empty() || rows.len() > PROJECTION_ROWS {
+                break;
+            }
+            // A control at a bound stays there: its columns are zero.
+            let held = |k: usize, j: usize| {
+                self.bounds.is_some_and(|b| {
+                    let u = self.us[k][j];
+                    u <= b.lower[j] || u >= b.upper[j]
+                })
+            };
+            let mut G = DMatrix::<f64>::zeros(rows.len(), n * NU);
+            let mut c = DVector::<f64>::zeros(rows.len());
+            for (r, (k, value, c_x, c_u)) in rows.iter().enumerate() {
+                c[r] = *value;
+                if *k < n {
+                    for j in 0..NU {
+                        G[(r, k * NU + j)] = c_u[j];
+                    }
+                }
+                // ∂c/∂u_i = c_x Φ(k, i + 1) B_i for i < k, by a sweep back.
+                let mut w = *c_x;
+                for i in (0..*k).rev() {
+                    let g = self.B[i].transpose() * w;
+                    for j in 0..NU {
+                        G[(r, i * NU + j)] = g[j];
+                    }
+                    w = self.A[i].transpose() * w;
+                }
+                for i in 0..n {
+                    for j in 0..NU {
+                        if held(i, j) {
+                            G[(r, i * NU + j)] = 0.0;
+                        }
+                    }
+                }
+            }
+            // δu = −Gᵀ(GGᵀ)⁻¹c, the least-norm step, lightly regularised
+            // for rows that coincide (the same bound at both ends of a
+            // step).
+            let mut GGt = &G * G.transpose();
+            for r in 0..rows.len() {
+                GGt[(r, r)] += 1e-12 * (1.0 + GGt[(r, r)]);
+            }
+            let Some(chol) = GGt.cholesky() else {
+                break;
+            };
+            let step = -(G.transpose() * chol.solve(&c));
+            let mut improved = false;
+            let mut alpha = 1.0;
+            for _ in 0..5 {
+                self.xs_new[0] = self.xs[0];
+                for k in 0..n {
+                    let mut u = self.us[k];
+                    for j in 0..NU {
+                        u[j] += alpha * step[k * NU + j];
+                    }
+                    if let Some(b) = &self.bounds {
+                        u = b.clamp(&u);
+                    }
+                    self.us_new[k] = u;
+                    self.xs_new[k + 1] = dynamics.step(&self.xs_new[k], &u);
+                }
+                let v = constraints.violation(&self.xs_new, &self.us_new);
+                if v < violation {
+                    std::mem::swap(&mut self.xs, &mut self.xs_new);
+                    std::mem::swap(&mut self.us, &mut self.us_new);
+                    violation = v;
+                    improved = true;
+                    break;
+                }
+                alpha *= 0.5;
+            }
+            if !improved {
+                break;
+            }
+        }
+        violation <= tolerance
+    }
+
+    /// The gains about the projected trajectory: a backward pass of the
+    /// augmented Lagrangian's model there, at μ = 0 where `Q_uu` allows,
+    /// else at the loop's μ. Where neither completes, the gains stay those
+    /// of the trajectory before the projection (within the tolerance of
+    /// it), and the summary says they are about the previous iterate.
+    fn gains_after_projection<D, C>(
+        &mut self,
+        dynamics: &D,
+        cost: &C,
+        options: &Options,
+        state: &mut LoopState,
+    ) where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        let never = || None;
+        let model = super::state::Model::Exact;
+        if self.linearize(dynamics, cost, model, &never).is_some() {
+            return;
+        }
+        let second = model.second_order(options);
+        for mu in [0.0, state.mu.max(options.mu_min)] {
+            if self.backward(dynamics, mu, second, &never).is_ok() {
+                state.gains.current = true;
+                state.gains.mu = mu;
+                return;
+            }
+        }
+        state.gains.current = false;
+    }
+}
