@@ -423,5 +423,10 @@ def _answer_of(result: SolveResult) -> Dict[str, Any]:
             "regularization": result.gains.regularization,
             "about_previous_iterate": result.gains.about_previous_iterate,
         },
-        "trace": [dict(vars(entry)) for entry in result.trace],
+        "trace": [
+            {key: value for key, value in vars(entry).items() if value is not None} for entry in result.trace
+        ],
+        "constraint_violation": result.constraint_violation,
+        "warnings": [warning.to_dict() for warning in result.warnings],
+        **({} if result.constraint_report is None else {"constraint_report": result.constraint_report.to_dict()}),
     }

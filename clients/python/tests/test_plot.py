@@ -113,6 +113,15 @@ def test_the_plot_s_defaults_are_the_service_s(client: Client) -> None:
         assert problem.goal_state == list(goal), info.type
         assert problem.obstacles is not None
         assert [(tuple(o.center), o.weight) for o in problem.obstacles] == list(obstacles), info.type
+    # And its table of each model's default dt, control names and θ entry.
+    from ilqr_client.plot import _TIMING
+
+    assert sorted(_TIMING) == sorted(info.type for info in infos)
+    for info in infos:
+        dt, controls, theta = _TIMING[info.type]
+        assert info.default_problem.dt == dt, info.type
+        assert tuple(q.name for q in info.control) == controls, info.type
+        assert info.state[theta].name == "θ", info.type
 
 
 def test_save_figure_of_a_unicycle(unicycle_result: SolveResult, tmp_path: Path) -> None:

@@ -40,10 +40,12 @@ if TYPE_CHECKING:  # pragma: no cover
     import numpy
 
     Floats = Union[Sequence[float], numpy.ndarray[Any, Any]]
+    BoundValues = Union[Sequence[Optional[float]], numpy.ndarray[Any, Any]]
     FloatRows = Union[Sequence[Floats], numpy.ndarray[Any, Any]]
     Array = numpy.ndarray[Any, Any]
 else:
     Floats = Sequence[float]
+    BoundValues = Sequence[Optional[float]]
     FloatRows = Sequence[Sequence[float]]
     Array = Any
 
@@ -54,11 +56,19 @@ __all__ = [
     "QuadrotorModel",
     "Weights",
     "Obstacle",
+    "Bounds",
+    "Constraints",
     "SolverOptions",
     "OutputOptions",
     "Problem",
     "TraceEntry",
     "Gains",
+    "ConstraintStatus",
+    "ObstacleStatus",
+    "ConstraintReport",
+    "SolveWarning",
+    "WARNING_CODES",
+    "OBSTACLE_SHAPES",
     "SolveResult",
     "QuantityInfo",
     "ParameterInfo",
@@ -66,10 +76,19 @@ __all__ = [
     "to_json_value",
     "Floats",
     "FloatRows",
+    "BoundValues",
 ]
 
 #: Every ``status`` a 200 answer may carry. Each one comes with the best trajectory found.
-SOLVE_STATUSES = ("converged", "max_iterations", "time_limit", "cancelled", "no_progress")
+#: ``infeasible``: with hard constraints, their violation could not be
+#: brought under ``solver.constraint_tolerance``.
+SOLVE_STATUSES = ("converged", "max_iterations", "time_limit", "cancelled", "no_progress", "infeasible")
+
+#: Every ``code`` of a result's :attr:`SolveResult.warnings` this client version knows.
+WARNING_CODES = ("goal_not_reached", "inside_obstacle", "negative_thrust")
+
+#: Every ``shape`` of an :class:`Obstacle`.
+OBSTACLE_SHAPES = ("point", "circle", "rectangle")
 
 #: The state entries of the position in the plane, ``(x, y)``, of the
 #: models this client version knows of: those a result's ``positions``
@@ -526,23 +545,54 @@ class Weights(_FieldsOnly):
 
 @dataclass
 class Obstacle(_FieldsOnly):
-    """A soft obstacle: adds ``weight·exp(−‖p − center‖)`` to every stage cost.
+    """An obstacle in the plane of the model's position ``p``: a point, a
+    circle or a rectangle.
+
+    ``d`` is the signed distance from ``p`` to it (to the centre for a
+    point; negative inside a circle or rectangle). With ``weight`` it adds
+    ``weight·exp(−d)`` to every stage cost (soft); with ``clearance`` it is
+    hard: ``d ≥ clearance`` at every state after the initial one. It can be
+    both. Every field but ``center`` left ``None`` is left out of the request.
 
     Attributes:
         center: ``[x, y]`` in m, each of magnitude ≤ 1e6. Required.
         weight: Weight q in [0, 1e12] (cost units). ``None`` is left out of
             the request, and the service then uses 1000, the seed obstacle's;
             so ``Obstacle(c)`` and ``Obstacle(c, 1000.0)`` pose the same
-            problem, though they compare unequal.
+            problem, though they compare unequal. 0 for a hard obstacle only.
+        shape: One of :data:`OBSTACLE_SHAPES`: ``"point"`` (service
+            default), ``"circle"`` (with ``radius``) or ``"rectangle"``
+            (with ``size`` and ``angle``).
+        radius: A circle's radius in m, 0..1e6; required for a circle, and
+            only for one.
+        size: A rectangle's ``[width, height]`` in m, each 0..1e6 (width
+            along its own x axis, turned by ``angle``); required for a
+            rectangle, and only for one.
+        angle: A rectangle's counter-clockwise rotation about its centre in
+            rad. Service default 0; only for a rectangle.
+        clearance: Makes it hard: the smallest signed distance ``d`` (m)
+            allowed at every state after the initial one (negative lets the
+            position that far inside). ``None``: soft only.
         extra: Members this client does not know; sent as they are.
     """
 
     center: Floats
     weight: Optional[float] = None
+    # After the original two, so that they keep their positions.
+    shape: Optional[str] = None
+    radius: Optional[float] = None
+    size: Optional[Floats] = None
+    angle: Optional[float] = None
+    clearance: Optional[float] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
+    @property
+    def hard(self) -> bool:
+        """Whether it is a hard constraint (it has a ``clearance``)."""
+        return self.clearance is not None
+
     def to_dict(self) -> Dict[str, Any]:
-        """The JSON object for this obstacle, without a ``None`` weight."""
+        """The JSON object for this obstacle, without ``None`` fields."""
         return _spec_to_dict(self)
 
     @classmethod
@@ -554,6 +604,75 @@ class Obstacle(_FieldsOnly):
         """
         known, extra = _split_known(cls, data, where)
         return _build(cls, known, extra, where)
+
+
+@dataclass
+class Bounds(_FieldsOnly):
+    """Lower and upper bounds, one entry per component (``constraints.control``
+    and ``constraints.state`` in a problem).
+
+    An entry ``None`` (JSON ``null``), or a list left out, is no bound; each
+    lower bound must be at most its upper bound (else a 422 at
+    ``/constraints/<control|state>/lower/<i>``).
+
+    Attributes:
+        lower: NU (control) or NX (state) numbers or ``None``s, in the
+            components' units.
+        upper: As ``lower``.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    lower: Optional[BoundValues] = None
+    upper: Optional[BoundValues] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for these bounds, without ``None`` fields (``None``
+        entries inside a list are sent as ``null``)."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/constraints/control") -> "Bounds":
+        """Build from the JSON object at ``where``."""
+        known, extra = _split_known(cls, data, where)
+        return _build(cls, known, extra, where)
+
+
+@dataclass
+class Constraints(_FieldsOnly):
+    """Hard constraints (``constraints`` in a problem), solved with an
+    augmented Lagrangian; the result's :attr:`SolveResult.constraint_report`
+    says how they hold. Every member is optional: one left ``None``
+    constrains nothing. Hard obstacles are :class:`Obstacle` objects with a
+    ``clearance``.
+
+    Attributes:
+        control: Bounds on the controls at every step (they hold exactly in
+            the result).
+        state: Bounds on the state at every step after the initial one.
+        goal_tolerance: ``|x_N − goal_state| ≤ goal_tolerance``, NX numbers
+            in [0, 1e6], in the state's units; 0 makes a component an
+            equality.
+        extra: Members this client does not know; sent as they are.
+    """
+
+    control: Optional[Bounds] = None
+    state: Optional[Bounds] = None
+    goal_tolerance: Optional[Floats] = None
+    extra: Dict[str, Any] = field(default_factory=dict)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object for these constraints, without ``None`` fields."""
+        return _spec_to_dict(self)
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> "Constraints":
+        """Build from the JSON object (``control`` and ``state`` as :class:`Bounds`)."""
+        known, extra = _split_known(cls, data, "/constraints")
+        for key in ("control", "state"):
+            if known.get(key) is not None:
+                known[key] = Bounds.from_dict(known[key], f"/constraints/{key}")
+        return _build(cls, known, extra, "/constraints")
 
 
 @dataclass
@@ -571,6 +690,10 @@ class SolverOptions(_FieldsOnly):
             ``"ddp"`` (keeps the dynamics' second derivatives; converges in
             a few steps where iLQR crawls, and may find another local
             optimum).
+        constraint_tolerance: The largest violation of the hard
+            constraints a solve may end with (in the constrained
+            quantities' units); a solve that cannot get under it is
+            ``infeasible``. Service default 1e-6.
         extra: Members this client does not know; sent as they are.
     """
 
@@ -578,6 +701,7 @@ class SolverOptions(_FieldsOnly):
     tolerance: Optional[float] = None
     time_limit_ms: Optional[int] = None
     method: Optional[str] = None
+    constraint_tolerance: Optional[float] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
@@ -656,6 +780,8 @@ class Problem(_FieldsOnly):
             guess and set the horizon when ``horizon`` is ``None``; its
             model, if it names one, must be this problem's. Not together
             with ``initial_controls``.
+        constraints: Hard constraints (control and state bounds, goal
+            tolerance); ``None`` leaves them out (none).
         extra: Members this client does not know; sent as they are.
     """
 
@@ -672,6 +798,7 @@ class Problem(_FieldsOnly):
     output: Optional[OutputOptions] = None
     # Last, so that the fields before keep their positions.
     warm_start: Optional[Union["SolveResult", Mapping[str, Any]]] = None
+    constraints: Optional[Constraints] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
@@ -695,6 +822,7 @@ class Problem(_FieldsOnly):
             "weights": Weights.from_dict,
             "solver": SolverOptions.from_dict,
             "output": OutputOptions.from_dict,
+            "constraints": Constraints.from_dict,
             "obstacles": lambda items: [
                 Obstacle.from_dict(item, f"/obstacles/{i}") for i, item in enumerate(_items(items, "/obstacles"))
             ],
@@ -706,7 +834,7 @@ class Problem(_FieldsOnly):
 
 
 #: The dataclasses :func:`to_json_value` serialises with their ``to_dict``.
-_REQUEST_TYPES = (Model, Weights, Obstacle, SolverOptions, OutputOptions, Problem)
+_REQUEST_TYPES = (Model, Weights, Obstacle, Bounds, Constraints, SolverOptions, OutputOptions, Problem)
 
 
 # --------------------------------------------------------------------------- #
@@ -732,6 +860,14 @@ class TraceEntry:
             fallback, see ``SolveResult.convexified_after_iteration``);
             ``False`` on nearly every solve; ``None`` from a service too old
             to report it.
+        outer_iteration: With hard constraints, the outer iteration of the
+            augmented Lagrangian this iteration belongs to (1-based); else
+            ``None``.
+        constraint_violation: With hard constraints, their largest
+            violation after the iteration (control bounds, which hold
+            throughout, not counted); else ``None``.
+        penalty: With hard constraints, the augmented Lagrangian's penalty
+            ρ; else ``None``.
     """
 
     iteration: int
@@ -743,6 +879,9 @@ class TraceEntry:
     feedforward_norm: float
     elapsed_ms: float
     convex_model: Optional[bool] = None
+    outer_iteration: Optional[int] = None
+    constraint_violation: Optional[float] = None
+    penalty: Optional[float] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/trace/-") -> "TraceEntry":
@@ -752,13 +891,17 @@ class TraceEntry:
         values: Dict[str, Any] = {}
         for f in fields(cls):
             path = f"{where}/{f.name}"
-            if f.name == "convex_model":
+            parse = _bool if f.name == "convex_model" else _int if f.name in _INT_TRACE_MEMBERS else _float
+            if f.name in _OPTIONAL_TRACE_MEMBERS:
                 raw = data.get(f.name)
-                values[f.name] = None if raw is None else _bool(raw, path)
+                values[f.name] = None if raw is None else parse(raw, path)
                 continue
-            raw = _require(data, f.name, where)
-            values[f.name] = _int(raw, path) if f.name == "iteration" else _float(raw, path)
+            values[f.name] = parse(_require(data, f.name, where), path)
         return cls(**values)
+
+
+_INT_TRACE_MEMBERS = frozenset({"iteration", "outer_iteration"})
+_OPTIONAL_TRACE_MEMBERS = frozenset({"convex_model", "outer_iteration", "constraint_violation", "penalty"})
 
 
 @dataclass(frozen=True)
@@ -888,6 +1031,160 @@ class Gains:
         )
 
 
+def _object(data: Any, where: str) -> Mapping[str, Any]:
+    if not isinstance(data, Mapping):
+        raise ValueError(f"{where}: expected an object")
+    return data
+
+
+@dataclass(frozen=True)
+class ConstraintStatus:
+    """One hard constraint (control bounds, state bounds or goal tolerance)
+    at the result.
+
+    Attributes:
+        max_violation: Its largest violation, in the constrained quantity's
+            unit; 0 when it holds everywhere.
+        active_steps: Steps at which it is active: within
+            ``solver.constraint_tolerance`` of its bound, or past it (for
+            the goal tolerance, 1 when a component is at its tolerance).
+    """
+
+    max_violation: float
+    active_steps: int
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/constraint_report/control") -> "ConstraintStatus":
+        """Parse the JSON object at ``where``; unknown members are ignored."""
+        data = _object(data, where)
+        return cls(
+            max_violation=_float(_require(data, "max_violation", where), f"{where}/max_violation"),
+            active_steps=_int(_require(data, "active_steps", where), f"{where}/active_steps"),
+        )
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object the service sends for it."""
+        return {"max_violation": self.max_violation, "active_steps": self.active_steps}
+
+
+@dataclass(frozen=True)
+class ObstacleStatus:
+    """A hard obstacle (one with a ``clearance``) at the result.
+
+    Attributes:
+        obstacle: Its index in the problem's ``obstacles``.
+        max_violation: How far inside its clearance the path goes at worst
+            (m); 0 when the clearance holds at every state.
+        active_steps: Steps at which the clearance is active.
+        smallest_distance: The smallest signed distance (m) from a state
+            after the initial one to the obstacle; at least ``clearance``
+            when the constraint holds.
+    """
+
+    obstacle: int
+    max_violation: float
+    active_steps: int
+    smallest_distance: float
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/constraint_report/obstacles/-") -> "ObstacleStatus":
+        """Parse the JSON object at ``where``; unknown members are ignored."""
+        data = _object(data, where)
+        values: Dict[str, Any] = {}
+        for f in fields(cls):
+            raw = _require(data, f.name, where)
+            path = f"{where}/{f.name}"
+            values[f.name] = _int(raw, path) if f.name in ("obstacle", "active_steps") else _float(raw, path)
+        return cls(**values)
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object the service sends for it."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+
+@dataclass(frozen=True)
+class ConstraintReport:
+    """The state of the hard constraints at the result
+    (:attr:`SolveResult.constraint_report`; only with hard constraints).
+
+    Attributes:
+        outer_iterations: Outer iterations of the augmented Lagrangian
+            (each a warm iLQR solve at new multipliers and penalty).
+        obstacles: One entry per hard obstacle, in the problem's order.
+        control: ``constraints.control``, if given; else ``None``.
+        state: ``constraints.state``, if given; else ``None``.
+        goal: ``constraints.goal_tolerance``, if given; else ``None``.
+    """
+
+    outer_iterations: int
+    obstacles: List[ObstacleStatus]
+    control: Optional[ConstraintStatus] = None
+    state: Optional[ConstraintStatus] = None
+    goal: Optional[ConstraintStatus] = None
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/constraint_report") -> "ConstraintReport":
+        """Parse the ``constraint_report`` of a solve answer; unknown members are ignored."""
+        data = _object(data, where)
+        obstacles = _list(_require(data, "obstacles", where), f"{where}/obstacles")
+        parts: Dict[str, Optional[ConstraintStatus]] = {}
+        for key in ("control", "state", "goal"):
+            raw = data.get(key)
+            parts[key] = None if raw is None else ConstraintStatus.from_dict(raw, f"{where}/{key}")
+        return cls(
+            outer_iterations=_int(_require(data, "outer_iterations", where), f"{where}/outer_iterations"),
+            obstacles=[
+                ObstacleStatus.from_dict(item, f"{where}/obstacles/{i}") for i, item in enumerate(obstacles)
+            ],
+            **parts,
+        )
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object the service sends for it (``None`` parts left out)."""
+        out: Dict[str, Any] = {"outer_iterations": self.outer_iterations}
+        for key in ("control", "state", "goal"):
+            part = getattr(self, key)
+            if part is not None:
+                out[key] = part.to_dict()
+        out["obstacles"] = [status.to_dict() for status in self.obstacles]
+        return out
+
+
+@dataclass(frozen=True)
+class SolveWarning:
+    """Something about a result its ``status`` does not say (an entry of
+    :attr:`SolveResult.warnings`). Also importable as ``ilqr_client.Warning``
+    (not in ``__all__``, so that ``import *`` keeps Python's ``Warning``).
+
+    Attributes:
+        code: What it is, for programs: one of :data:`WARNING_CODES`
+            (``"goal_not_reached"``, ``"inside_obstacle"``,
+            ``"negative_thrust"``), or a newer service's.
+        message: What it is, for people: where, by how much, and how to
+            turn it into a hard constraint.
+    """
+
+    code: str
+    message: str
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/warnings/-") -> "SolveWarning":
+        """Parse one entry of ``warnings``; unknown members are ignored."""
+        data = _object(data, where)
+        return cls(
+            code=_string(_require(data, "code", where), f"{where}/code"),
+            message=_string(_require(data, "message", where), f"{where}/message"),
+        )
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object the service sends for it."""
+        return {"code": self.code, "message": self.message}
+
+
+#: :class:`SolveWarning` by the name the API gives it.
+Warning = SolveWarning
+
+
 @dataclass(frozen=True)
 class SolveResult:
     """The answer to ``POST /solve``.
@@ -949,6 +1246,15 @@ class SolveResult:
             that made this result had fetched them (:meth:`Client.models`);
             else ``None``, and :attr:`positions` uses what this client
             version knows (not part of equality).
+        constraint_violation: The largest violation of the hard
+            constraints at the result (0 without any); at most
+            ``solver.constraint_tolerance`` unless ``infeasible`` (or
+            stopped early). ``None`` from a service too old to report it.
+        constraint_report: How each hard constraint holds; ``None`` for a
+            problem without hard constraints.
+        warnings: What the ``status`` does not say (goal not reached, path
+            through an obstacle, negative thrust), as
+            :class:`SolveWarning` entries; empty when there is nothing to say.
     """
 
     status: str
@@ -972,6 +1278,9 @@ class SolveResult:
     model: Optional[str] = None
     integrator: Optional[str] = None
     model_position: Optional[Tuple[int, int]] = field(default=None, compare=False)
+    constraint_violation: Optional[float] = None
+    constraint_report: Optional[ConstraintReport] = None
+    warnings: List[SolveWarning] = field(default_factory=list)
 
     @classmethod
     def from_dict(
@@ -1010,6 +1319,9 @@ class SolveResult:
         closest_approach = _vector(_require(data, "closest_approach", "(result)"), "/closest_approach")
         states = _matrix(_require(data, "states", "(result)"), "/states")
         controls = _matrix(_require(data, "controls", "(result)"), "/controls")
+        violation = data.get("constraint_violation")
+        report = data.get("constraint_report")
+        warnings = data.get("warnings")
         nx = len(states[0]) if states else None
         nu = len(controls[0]) if controls else None
         return cls(
@@ -1039,6 +1351,11 @@ class SolveResult:
             server_timing=server_timing,
             attempts=attempts,
             model_position=model_position,
+            constraint_violation=None if violation is None else _float(violation, "/constraint_violation"),
+            constraint_report=None if report is None else ConstraintReport.from_dict(report),
+            warnings=[] if warnings is None else [
+                SolveWarning.from_dict(item, f"/warnings/{i}") for i, item in enumerate(_list(warnings, "/warnings"))
+            ],
         )
 
     def __repr__(self) -> str:
@@ -1058,13 +1375,19 @@ class SolveResult:
             f"iterations={self.iterations}, horizon={self.horizon}, "
             f"goal_distance={self.goal_distance!r}, closest_approach={nearest}, "
             f"solve_time_ms={self.solve_time_ms!r}, queue_time_ms={self.queue_time_ms!r}, "
-            f"gains={gains}, trace={trace}, request_id={self.request_id!r})"
+            f"gains={gains}, trace={trace}, constraint_violation={self.constraint_violation!r}, "
+            f"warnings={[w.code for w in self.warnings]!r}, request_id={self.request_id!r})"
         )
 
     @property
     def converged(self) -> bool:
         """Whether the solve met its tolerance (``status == "converged"``)."""
         return self.status == "converged"
+
+    @property
+    def infeasible(self) -> bool:
+        """Whether the hard constraints could not be met (``status == "infeasible"``)."""
+        return self.status == "infeasible"
 
     @property
     def horizon(self) -> int:

@@ -6,10 +6,16 @@ without it; the call then raises an :class:`ImportError` that says what to
 install.
 
 * :func:`plot_solution`: the (x, y) path of any model (the state entries
-  of its position), start, end and goal markers, obstacle centres and
-  circles at the closest approach; for the unicycle, heading arrows.
+  of its position), start, end and goal markers, obstacle centres, shapes
+  (circles, rotated rectangles), the clearance outline of hard obstacles
+  (dashed) and circles at the closest approach; for the unicycle, heading
+  arrows.
 * :func:`plot_cost`: cost per iteration from the trace, on a log scale.
-* :func:`save_figure`: both panels side by side, written as a PNG (uses no
+* :func:`plot_controls`: the controls against time, with the problem's
+  control bounds as horizontal lines.
+* :func:`plot_angle`: the heading or pitch θ against time, with the
+  problem's state bounds on it.
+* :func:`save_figure`: the four panels, written as a PNG (uses no
   pyplot state, so it is safe in scripts, servers and threads).
 """
 
@@ -29,7 +35,7 @@ if TYPE_CHECKING:  # pragma: no cover
 else:
     Axes = Any
 
-__all__ = ["plot_solution", "plot_cost", "save_figure"]
+__all__ = ["plot_solution", "plot_cost", "plot_controls", "plot_angle", "save_figure"]
 
 # What the service gives an obstacle that sets no weight (the seed's), for every model.
 _DEFAULT_OBSTACLE_WEIGHT = 1000.0
@@ -43,6 +49,15 @@ _Obstacles = Tuple[Tuple[Tuple[float, float], float], ...]
 _DEFAULTS: Mapping[str, Tuple[Tuple[float, ...], _Obstacles]] = {
     "quadrotor_2d": ((4.0, 9.0, 0.0, 0.0, 0.0, 0.0), (((4.5, 4.5), _DEFAULT_OBSTACLE_WEIGHT),)),
     "unicycle": ((4.0, 0.0, 0.0), (((2.0, 0.3), 5.0),)),
+}
+
+#: Each built-in model's default time step dt (s), its controls' names and
+#: the state entry of its angle θ (``GET /models``; a test checks them
+#: against the service). A problem of another model that omits ``dt`` is
+#: drawn against the step index, with generic control names.
+_TIMING: Mapping[str, Tuple[float, Tuple[str, ...], int]] = {
+    "quadrotor_2d": (0.05, ("u1", "u2"), 2),
+    "unicycle": (0.1, ("v", "ω"), 2),
 }
 
 #: The state entry of the heading θ (counter-clockwise from the x axis) of
@@ -86,8 +101,9 @@ def _model_of(result: SolveResult, problem: Optional[Mapping[str, Any]]) -> str:
 
 def _goal_and_obstacles(
     problem: Optional[Mapping[str, Any]], model: str,
-) -> Tuple[Optional[Sequence[float]], List[Tuple[Sequence[float], float]]]:
-    """The goal state and obstacles the service solved for.
+) -> Tuple[Optional[Sequence[float]], List[Mapping[str, Any]]]:
+    """The goal state and obstacles (as JSON objects, ``weight`` filled in)
+    the service solved for.
 
     With no problem nothing is known (``None, []``). A problem that omits the
     goal or the obstacles was solved with the model's defaults, so those are
@@ -101,14 +117,65 @@ def _goal_and_obstacles(
         goal = default_goal
     raw_obstacles = problem.get("obstacles")
     if raw_obstacles is None:
-        return goal, list(default_obstacles)
-    obstacles = []
+        return goal, [{"center": center, "weight": weight} for center, weight in default_obstacles]
+    obstacles: List[Mapping[str, Any]] = []
     for obstacle in raw_obstacles:
         if not isinstance(obstacle, Mapping):  # an Obstacle dataclass
             obstacle = obstacle.to_dict()
         weight = obstacle.get("weight")
-        obstacles.append((obstacle["center"], _DEFAULT_OBSTACLE_WEIGHT if weight is None else float(weight)))
+        obstacles.append({**obstacle, "weight": _DEFAULT_OBSTACLE_WEIGHT if weight is None else float(weight)})
     return goal, obstacles
+
+
+def _rectangle_outline(obstacle: Mapping[str, Any], offset: float) -> List[Tuple[float, float]]:
+    """The outline of a rotated rectangle grown by ``offset`` (m): its
+    corners rounded with quarter circles for ``offset > 0``, a smaller
+    rectangle for ``offset < 0``, in the plane's coordinates."""
+    cx, cy = float(obstacle["center"][0]), float(obstacle["center"][1])
+    width, height = (float(v) for v in obstacle.get("size") or (0.0, 0.0))
+    angle = float(obstacle.get("angle") or 0.0)
+    hw, hh = width / 2, height / 2
+    local: List[Tuple[float, float]] = []
+    if offset > 0:
+        # Corners counter-clockwise from (+, +), each with its quarter arc.
+        for k, (sx, sy) in enumerate(((1, 1), (-1, 1), (-1, -1), (1, -1))):
+            for i in range(9):
+                a = (k + i / 8) * math.pi / 2
+                local.append((sx * hw + offset * math.cos(a), sy * hh + offset * math.sin(a)))
+    else:
+        hw, hh = max(hw + offset, 0.0), max(hh + offset, 0.0)
+        local = [(hw, hh), (-hw, hh), (-hw, -hh), (hw, -hh)]
+    c, s = math.cos(angle), math.sin(angle)
+    return [(cx + c * x - s * y, cy + s * x + c * y) for x, y in local]
+
+
+def _draw_obstacle(ax: Axes, obstacle: Mapping[str, Any], first: bool, first_hard: bool) -> None:
+    """Draw an obstacle's shape (a circle or a rectangle; nothing for a
+    point) and, for a hard one, its clearance outline, dashed."""
+    from matplotlib.patches import Circle, Polygon
+
+    shape = obstacle.get("shape") or "point"
+    center = (float(obstacle["center"][0]), float(obstacle["center"][1]))
+    style = dict(facecolor="tab:red", edgecolor="tab:red", alpha=0.25)
+    if shape == "circle":
+        radius = float(obstacle.get("radius") or 0.0)
+        ax.add_patch(Circle(center, radius, gid="obstacle shape",
+                            label="obstacle shape" if first else None, **style))
+    elif shape == "rectangle":
+        ax.add_patch(Polygon(_rectangle_outline(obstacle, 0.0), closed=True, gid="obstacle shape",
+                             label="obstacle shape" if first else None, **style))
+    else:
+        radius = 0.0
+    clearance = obstacle.get("clearance")
+    if clearance is None:
+        return
+    clearance = float(clearance)
+    outline = dict(fill=False, linestyle="--", edgecolor="black", linewidth=1.0, gid="clearance",
+                   label="clearance" if first_hard else None)
+    if shape == "rectangle":
+        ax.add_patch(Polygon(_rectangle_outline(obstacle, clearance), closed=True, **outline))
+    elif radius + clearance > 0:
+        ax.add_patch(Circle(center, radius + clearance, **outline))
 
 
 def plot_solution(
@@ -144,7 +211,7 @@ def plot_solution(
 
     if ax is None:
         ax = _new_axes()
-    document = problem.to_dict() if isinstance(problem, Problem) else problem
+    document = _document(problem)
     model = _model_of(result, document)
     ix, iy = result.position_entries
     xs = [state[ix] for state in result.states]
@@ -168,10 +235,15 @@ def plot_solution(
     if goal is not None:  # drawn before the end marker, which usually sits on it
         ax.plot(goal[ix], goal[iy], "*", color="tab:orange", markersize=16, label="goal")
     ax.plot(xs[-1], ys[-1], "s", color="tab:blue", markersize=6, label="end")
-    for j, (center, weight) in enumerate(obstacles):
+    hard = [j for j, obstacle in enumerate(obstacles) if obstacle.get("clearance") is not None]
+    shaped = [j for j, obstacle in enumerate(obstacles) if (obstacle.get("shape") or "point") != "point"]
+    for j, obstacle in enumerate(obstacles):
+        center, weight = obstacle["center"], obstacle["weight"]
+        _draw_obstacle(ax, obstacle, first=bool(shaped) and j == shaped[0], first_hard=bool(hard) and j == hard[0])
         ax.plot(center[0], center[1], "x", color="tab:red", markersize=9, mew=2,
                 label="obstacle" if j == 0 else None)
-        ax.annotate(f"q={weight:g}", (center[0], center[1]), textcoords="offset points",
+        note = f"q={weight:g}" if obstacle.get("clearance") is None else f"q={weight:g}, d≥{obstacle['clearance']:g}"
+        ax.annotate(note, (center[0], center[1]), textcoords="offset points",
                     xytext=(6, 6), fontsize=8, color="tab:red")
         if j < len(result.closest_approach):
             ax.add_patch(Circle(
@@ -185,6 +257,126 @@ def plot_solution(
     ax.set_xlabel("x [m]")
     ax.set_ylabel("y [m]")
     ax.set_title(f"{model}: {result.status}, cost {result.cost:.6g}")
+    ax.grid(True, alpha=0.3)
+    ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def _document(problem: Union[Problem, Mapping[str, Any], None]) -> Optional[Mapping[str, Any]]:
+    """The problem as its JSON document (``None`` stays ``None``)."""
+    return problem.to_dict() if isinstance(problem, Problem) else problem
+
+
+def _times(result: SolveResult, problem: Optional[Mapping[str, Any]], model: str, count: int) -> Tuple[List[float], str]:
+    """``count`` knot times k·dt (dt the problem's, else the model's
+    default) and the axis label; the step index for an unknown dt."""
+    dt = problem.get("dt") if problem is not None else None
+    if dt is None and model in _TIMING:
+        dt = _TIMING[model][0]
+    if dt is None:
+        return [float(k) for k in range(count)], "step k"
+    return [k * float(dt) for k in range(count)], "t [s]"
+
+
+def _bounds(problem: Optional[Mapping[str, Any]], part: str, entry: int) -> List[Tuple[str, float]]:
+    """The lower and upper bounds of ``constraints.<part>`` on one entry
+    (``("lower", value)``, ``("upper", value)``; those given and not null)."""
+    constraints = problem.get("constraints") if problem is not None else None
+    if constraints is not None and not isinstance(constraints, Mapping):
+        constraints = constraints.to_dict()
+    bounds = constraints.get(part) if constraints else None
+    if bounds is not None and not isinstance(bounds, Mapping):
+        bounds = bounds.to_dict()
+    found = []
+    for side in ("lower", "upper"):
+        values = bounds.get(side) if bounds else None
+        if values is not None and entry < len(values) and values[entry] is not None:
+            found.append((side, float(values[entry])))
+    return found
+
+
+def plot_controls(
+    result: SolveResult,
+    problem: Union[Problem, Mapping[str, Any], None] = None,
+    ax: Optional[Axes] = None,
+) -> Axes:
+    """Draw each control against time (held over its step), with the
+    problem's ``constraints.control`` bounds as dashed horizontal lines in
+    the control's colour.
+
+    Args:
+        result: The solve result.
+        problem: The problem that was solved, for ``dt`` (else the model's
+            default) and the bounds; without it no bounds are drawn.
+        ax: Axes to draw on; a new pyplot figure when omitted.
+
+    Returns:
+        The axes drawn on.
+
+    Raises:
+        ImportError: if matplotlib is not installed.
+    """
+    _require_matplotlib()
+    if ax is None:
+        ax = _new_axes()
+    document = _document(problem)
+    model = _model_of(result, document)
+    times, xlabel = _times(result, document, model, len(result.controls) + 1)
+    names = _TIMING[model][1] if model in _TIMING else ()
+    width = len(result.controls[0]) if result.controls else 0
+    for i in range(width):
+        name = names[i] if i < len(names) else f"u[{i}]"
+        values = [u[i] for u in result.controls]
+        (line,) = ax.step(times, values + values[-1:], where="post", label=name)
+        for side, value in _bounds(document, "control", i):
+            ax.axhline(value, linestyle="--", color=line.get_color(), linewidth=1.0, alpha=0.8,
+                       label=f"{name} {side} bound")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("control")
+    ax.set_title(f"{model}: controls")
+    ax.grid(True, alpha=0.3)
+    if width:
+        ax.legend(loc="best", fontsize="small")
+    return ax
+
+
+def plot_angle(
+    result: SolveResult,
+    problem: Union[Problem, Mapping[str, Any], None] = None,
+    ax: Optional[Axes] = None,
+) -> Axes:
+    """Draw the angle θ (the quadrotor's pitch, the unicycle's heading)
+    against time, with the problem's ``constraints.state`` bounds on it as
+    dashed horizontal lines.
+
+    Args:
+        result: The solve result, of a model whose θ entry this client
+            version knows (``quadrotor_2d``, ``unicycle``).
+        problem: The problem that was solved, for ``dt`` and the bounds.
+        ax: Axes to draw on; a new pyplot figure when omitted.
+
+    Returns:
+        The axes drawn on.
+
+    Raises:
+        ValueError: for a model whose θ entry is unknown.
+        ImportError: if matplotlib is not installed.
+    """
+    document = _document(problem)
+    model = _model_of(result, document)
+    if model not in _TIMING:
+        raise ValueError(f"which state entry is θ of model {model!r} is not known")
+    _require_matplotlib()
+    if ax is None:
+        ax = _new_axes()
+    entry = _TIMING[model][2]
+    times, xlabel = _times(result, document, model, len(result.states))
+    ax.plot(times, [state[entry] for state in result.states], "-", color="tab:blue", label="θ")
+    for side, value in _bounds(document, "state", entry):
+        ax.axhline(value, linestyle="--", color="tab:red", linewidth=1.0, label=f"θ {side} bound")
+    ax.set_xlabel(xlabel)
+    ax.set_ylabel("θ [rad]")
+    ax.set_title(f"{model}: θ")
     ax.grid(True, alpha=0.3)
     ax.legend(loc="best", fontsize="small")
     return ax
@@ -241,7 +433,9 @@ def save_figure(
     *,
     dpi: int = 100,
 ) -> None:
-    """Write a two-panel figure: the trajectory (left) and the cost history (right).
+    """Write a four-panel figure: the trajectory and the cost history (top),
+    the controls and θ against time (bottom; θ only for the models whose θ
+    entry this client version knows).
 
     The format follows the file's extension (``.png``, ``.pdf``, ``.svg``,
     any matplotlib writes; PNG without one); an unknown one raises
@@ -264,9 +458,14 @@ def save_figure(
     _require_matplotlib()
     from matplotlib.figure import Figure
 
-    figure = Figure(figsize=(12, 5))
-    left, right = figure.subplots(1, 2)
+    figure = Figure(figsize=(12, 9))
+    (left, right), (controls, angle) = figure.subplots(2, 2)
     plot_solution(result, problem, ax=left)
+    plot_controls(result, problem, ax=controls)
+    if _model_of(result, _document(problem)) in _TIMING:
+        plot_angle(result, problem, ax=angle)
+    else:
+        angle.set_axis_off()
     if result.trace is not None:
         plot_cost(result, ax=right)
     else:
