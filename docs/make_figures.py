@@ -3,8 +3,8 @@
 
 Each figure is made with the project's own code: the release binary solves
 the problem (``ilqr-service solve PROBLEM --output RESULT.json``) and
-:func:`ilqr_client.plot.save_figure` draws the result (trajectory on the
-left, cost per iteration on the right).
+:func:`ilqr_client.plot.save_figure` draws the result (trajectory and cost
+per iteration on top, controls and θ against time below, with any bounds).
 
     cargo build --release
     python3 -m venv /tmp/figvenv
@@ -40,6 +40,7 @@ EXAMPLES = REPO / "examples"
 FIGURES = [
     ("seed.png", "seed.json"),
     ("three_obstacles.png", "three_obstacles.json"),
+    ("dubins_three_obstacles.png", "dubins_three_obstacles.json"),
 ]
 
 DPI = 110

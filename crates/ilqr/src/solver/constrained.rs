@@ -49,6 +49,15 @@ const PROJECTION_STEPS: usize = 8;
 /// them).
 const PROJECTION_ROWS: usize = 1000;
 
+/// The most iterations of one inner solve: one that needs more goes on
+/// as the next outer iteration, at updated multipliers. An infeasible
+/// problem's inner solves at large penalties otherwise crawl for a
+/// hundred iterations each.
+const INNER_ITERATIONS: usize = 30;
+
+/// The least regularisation an inner solve starts from.
+const MU_FLOOR: f64 = 1e-2;
+
 /// An outer iteration whose violation is at most this fraction of the last
 /// one's keeps the penalty: its multipliers are doing the work (the
 /// classic rule of augmented-Lagrangian methods, Nocedal & Wright §17.4).
@@ -107,6 +116,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut tight = m == 0;
         let mut outer = 0;
         let mut iterations = 0;
+        let mut carried_mu: Option<f64> = None;
         let mut previous = f64::INFINITY;
         let mut best = (f64::INFINITY, 0usize);
         let mut last_summary;
@@ -127,11 +137,17 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             self.xs = xs;
             let mut state = LoopState::new(options, cost);
             state.iterations = iterations;
+            if let Some(mu) = carried_mu {
+                state.mu = mu;
+            }
             state.tolerance = if tight { options.tolerance } else { loose };
             // With the penalties added, the caller's lower bound on the
             // cost is not the inner problems': they converge by the
             // gradient test alone.
             state.cost_lower_bound = None;
+            state.max_iterations = options
+                .max_iterations
+                .min(iterations.saturating_add(INNER_ITERATIONS));
             let annotate = |s: &Self, row: &mut TraceRow| {
                 row.outer_iteration = outer;
                 row.penalty = rho;
@@ -146,6 +162,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 (&mut *observe, &annotate),
             );
             iterations = state.iterations;
+            carried_mu = Some(state.mu.clamp(MU_FLOOR, options.mu_init.max(MU_FLOOR)));
             let violation = constraints.violation(&self.xs, &self.us);
             if violation < best.0 {
                 best = (violation, outer);
@@ -159,8 +176,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // The multipliers no longer shrink the violation: what is left
             // is the inner problems' stiffness, not the multipliers' error.
             let stalled = violation > SUFFICIENT * previous;
+            // An inner solve cut short by its own cap goes on as the next
+            // outer iteration; the caller's cap ends the solve.
+            let spent = iterations >= options.max_iterations;
             let stop = match inner {
-                Status::TimeLimit | Status::Cancelled | Status::MaxIterations => Some(inner),
+                Status::TimeLimit | Status::Cancelled => Some(inner),
+                Status::MaxIterations if spent => Some(inner),
                 Status::Converged if feasible && tight => Some(Status::Converged),
                 Status::NoProgress if feasible && tight => Some(Status::NoProgress),
                 // A tight inner solve came close and the multiplier update

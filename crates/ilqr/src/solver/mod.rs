@@ -681,7 +681,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 }
             }
         }
-        if state.iterations >= options.max_iterations {
+        if state.iterations >= state.max_iterations {
             return Verdict::Stop(Status::MaxIterations);
         }
         Verdict::Step(bw)

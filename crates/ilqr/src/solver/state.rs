@@ -106,6 +106,10 @@ pub(super) struct LoopState {
     /// The cost's lower bound in force ([`Options::cost_lower_bound`];
     /// none for an augmented Lagrangian's inner solves).
     pub(super) cost_lower_bound: Option<f64>,
+    /// The iteration count at which the loop stops `MaxIterations`:
+    /// [`Options::max_iterations`], or sooner for an inner solve of an
+    /// augmented Lagrangian.
+    pub(super) max_iterations: usize,
 }
 
 impl LoopState {
@@ -135,6 +139,7 @@ impl LoopState {
             convexified_after: None,
             tolerance: options.tolerance,
             cost_lower_bound: options.cost_lower_bound,
+            max_iterations: options.max_iterations,
         }
     }
 
