@@ -188,14 +188,26 @@ pub(super) fn riccati_step_into<const NX: usize, const NU: usize>(
     for (i, col) in Q_uu_reg.iter_mut().enumerate() {
         col[i] += mu;
     }
-    let (d, Kt) = match boxed {
-        None => {
-            let (L, D_inv) = ldlt(&Q_uu_reg)?;
-            let d = ldlt_solve_vec(&L, &D_inv, &Q_u).map(|x| -x);
+    // The unconstrained step; with bounds it is also the box QP's answer
+    // whenever it lies inside them (every control free), which spares the
+    // QP at most knots.
+    let unconstrained = ldlt(&Q_uu_reg).map(|(L, D_inv)| {
+        let d = ldlt_solve_vec(&L, &D_inv, &Q_u).map(|x| -x);
+        (d, L, D_inv)
+    });
+    let inside =
+        |d: &[f64; NU], b: &Boxed<NU>| (0..NU).all(|i| d[i] >= b.lower[i] && d[i] <= b.upper[i]);
+    let (d, Kt) = match (boxed, unconstrained) {
+        (None, None) => return None,
+        (None, Some((d, L, D_inv))) => {
             let Kt = ldlt_solve_right(&L, &D_inv, &Q_xu).map(|col| col.map(|x| -x));
             (d, Kt)
         }
-        Some(b) => {
+        (Some(b), Some((d, L, D_inv))) if inside(&d, b) => {
+            let Kt = ldlt_solve_right(&L, &D_inv, &Q_xu).map(|col| col.map(|x| -x));
+            (d, Kt)
+        }
+        (Some(b), _) => {
             let h = SMatrix::<f64, NU, NU>::from_fn(|i, j| Q_uu_reg[j][i]);
             let g = SVector::<f64, NU>::from(Q_u);
             let qp = solve_box_qp(
