@@ -549,13 +549,21 @@ fn hard_constraints<const NX: usize, const NU: usize>(
     position: (usize, usize),
 ) -> Result<Constraints<NX, NU>, Unsolvable> {
     let c = &spec.constraints;
-    let control = c.control.as_ref().map(|b| {
-        let (lower, upper) = b.resolved(NU);
-        ControlBounds {
-            lower: SVector::from_column_slice(&lower),
-            upper: SVector::from_column_slice(&upper),
-        }
-    });
+    // Bounds that bound nothing (`{}`, all null) are none: the solve stays
+    // the unconstrained one.
+    let control = c
+        .control
+        .as_ref()
+        .map(|b| {
+            let (lower, upper) = b.resolved(NU);
+            ControlBounds {
+                lower: SVector::from_column_slice(&lower),
+                upper: SVector::from_column_slice(&upper),
+            }
+        })
+        .filter(|b: &ControlBounds<NU>| {
+            b.lower.iter().chain(b.upper.iter()).any(|x| x.is_finite())
+        });
     let mut other: Vec<Box<dyn Constraint<NX, NU>>> = Vec::new();
     for part in parts(spec) {
         match part {

@@ -256,6 +256,32 @@ async fn a_goal_inside_a_hard_obstacle_is_infeasible() {
     assert!(r["solve_time_ms"].as_f64().unwrap() < 1000.0);
 }
 
+/// A loose `constraint_tolerance` is met and says `converged`, not
+/// `infeasible` (the outer loop once went tight only under 1e-4); bounds
+/// that bound nothing leave the solve unconstrained, bit for bit.
+#[tokio::test]
+async fn a_loose_tolerance_converges_and_empty_bounds_change_nothing() {
+    let s = Server::default().await;
+    let mut problem: Value =
+        serde_json::from_str(include_str!("../examples/dubins_three_obstacles.json")).unwrap();
+    problem["solver"] = json!({"constraint_tolerance": 0.01});
+    let r = solve(&s, &problem).await;
+    assert_eq!(r["status"], "converged");
+    assert!(r["constraint_violation"].as_f64().unwrap() <= 0.01);
+
+    let seed = solve(&s, &json!({})).await;
+    for empty in [
+        json!({"constraints": {"control": {}}}),
+        json!({"constraints": {"control": {"lower": [null, null]}}}),
+        json!({"constraints": {}}),
+    ] {
+        let r = solve(&s, &empty).await;
+        assert_eq!(r["cost"], seed["cost"], "{empty}");
+        assert_eq!(r["controls"], seed["controls"], "{empty}");
+        assert!(r.get("constraint_report").is_none(), "{empty}");
+    }
+}
+
 /// What `status` alone does not say is in `warnings`; a bound that forbids
 /// it silences it.
 #[tokio::test]

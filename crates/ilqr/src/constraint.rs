@@ -85,9 +85,15 @@ pub trait Constraint<const NX: usize, const NU: usize>: Send + Sync {
 }
 
 /// How far component `c` of a constraint is violated: `max(c, 0)`, or `|c|`
-/// for an equality.
+/// for an equality; infinite for a NaN (which `f64::max` would drop).
 pub fn violation(c: f64, equality: bool) -> f64 {
-    if equality { c.abs() } else { c.max(0.0) }
+    if c.is_nan() {
+        f64::INFINITY
+    } else if equality {
+        c.abs()
+    } else {
+        c.max(0.0)
+    }
 }
 
 /// `lower ≤ x_k ≤ upper` at every state after the initial one; infinite

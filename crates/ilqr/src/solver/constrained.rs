@@ -13,10 +13,14 @@
 //!   the violation under the tolerance. Inner solves before the violation
 //!   first gets there use the looser [`Options::intermediate_tolerance`];
 //! * `Infeasible`: at the largest penalty the violation fell by less than
-//!   1% over an outer iteration, or the outer iterations ran out. The
-//!   least violating iterate found is returned;
+//!   1% over an outer iteration, or the outer iterations ran out, with the
+//!   violation above the tolerance. The least violating iterate found is
+//!   returned;
 //! * `MaxIterations`, `TimeLimit`, `Cancelled`: as for an unconstrained
-//!   solve, counted over all the inner solves together;
+//!   solve, counted over all the inner solves together; also
+//!   `MaxIterations` where the outer iterations ran out with the
+//!   constraints met but the last inner solve cut short by its own cap of
+//!   30 iterations;
 //! * `NoProgress`: an inner solve at the tight tolerance made no progress
 //!   where the violation is already under the tolerance.
 //!
@@ -45,9 +49,21 @@ const PROJECT_BELOW: f64 = 1e-4;
 /// The most Gauss–Newton steps of the final projection.
 const PROJECTION_STEPS: usize = 8;
 
-/// The most constraint rows the projection handles (its system is dense in
-/// them).
-const PROJECTION_ROWS: usize = 1000;
+/// The most entries of the projection's dense constraint Jacobian (rows ×
+/// N·NU): 16 MB. Beyond it the solve goes without the projection.
+const PROJECTION_ENTRIES: usize = 2_000_000;
+
+/// How a projection ended.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum Projection {
+    /// The violation is under the tolerance.
+    Feasible,
+    /// It lowered the violation but not under the tolerance: the
+    /// trajectory moved, and the gains are about the one before.
+    Moved,
+    /// Nothing changed.
+    Unchanged,
+}
 
 /// The most iterations of one inner solve: one that needs more goes on
 /// as the next outer iteration, at updated multipliers. An infeasible
@@ -108,6 +124,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         self.best_K.clone_from(&self.K);
         self.best_d.clone_from(&self.d);
         let loose = options.tolerance.max(options.intermediate_tolerance);
+        let tolerance = options.constraint_tolerance;
 
         let interrupted = super::interruption(cancel, options, start);
         let dynamics = &problem.dynamics;
@@ -145,9 +162,12 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // cost is not the inner problems': they converge by the
             // gradient test alone.
             state.cost_lower_bound = None;
-            state.max_iterations = options
-                .max_iterations
-                .min(iterations.saturating_add(INNER_ITERATIONS));
+            // Control bounds alone need no outer loop: no cap there.
+            if m > 0 {
+                state.max_iterations = options
+                    .max_iterations
+                    .min(iterations.saturating_add(INNER_ITERATIONS));
+            }
             let annotate = |s: &Self, row: &mut TraceRow| {
                 row.outer_iteration = outer;
                 row.penalty = rho;
@@ -171,7 +191,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 self.best_K.copy_from_slice(&self.K);
                 self.best_d.copy_from_slice(&self.d);
             }
-            let feasible = violation <= options.constraint_tolerance;
+            let feasible = violation <= tolerance;
             let near = violation <= PROJECT_BELOW;
             // The multipliers no longer shrink the violation: what is left
             // is the inner problems' stiffness, not the multipliers' error.
@@ -189,25 +209,48 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // projection closes the last gap at a cost change of about
                 // λ·violation, where more outer iterations would stiffen
                 // the inner problems past what their line searches resolve.
-                Status::Converged | Status::NoProgress
-                    if tight
-                        && near
-                        && stalled
-                        && self.project(dynamics, constraints, options.constraint_tolerance) =>
-                {
-                    self.gains_after_projection(dynamics, &augmented, options, &mut state);
-                    Some(Status::Converged)
+                Status::Converged | Status::NoProgress if tight && near && stalled => {
+                    match self.project(dynamics, constraints, tolerance, &interrupted) {
+                        Projection::Feasible => {
+                            self.gains_after_projection(dynamics, &augmented, options, &mut state);
+                            Some(Status::Converged)
+                        }
+                        Projection::Moved => {
+                            state.gains.current = false;
+                            None
+                        }
+                        Projection::Unchanged => None,
+                    }
                 }
                 _ if outer >= options.max_outer_iterations
                     || (rho >= options.penalty_max && violation > (1.0 - STALL) * previous) =>
                 {
-                    // The outer loop can do no more. Where it came close,
-                    // the projection may finish the job.
-                    if near && self.project(dynamics, constraints, options.constraint_tolerance) {
-                        self.gains_after_projection(dynamics, &augmented, options, &mut state);
-                        Some(Status::Converged)
+                    // The outer loop can do no more. Where it came close
+                    // after an inner solve that settled, the projection may
+                    // finish the job; an inner solve cut short by its cap
+                    // has not settled.
+                    let settled = matches!(inner, Status::Converged | Status::NoProgress);
+                    let projected = if (near || feasible) && settled {
+                        self.project(dynamics, constraints, tolerance, &interrupted)
                     } else {
-                        Some(Status::Infeasible)
+                        Projection::Unchanged
+                    };
+                    match projected {
+                        Projection::Feasible => {
+                            self.gains_after_projection(dynamics, &augmented, options, &mut state);
+                            Some(Status::Converged)
+                        }
+                        Projection::Moved | Projection::Unchanged => {
+                            if projected == Projection::Moved {
+                                state.gains.current = false;
+                            }
+                            let violation = constraints.violation(&self.xs, &self.us);
+                            Some(if violation <= tolerance {
+                                Status::MaxIterations
+                            } else {
+                                Status::Infeasible
+                            })
+                        }
                     }
                 }
                 _ => None,
@@ -225,7 +268,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 self.lambda = lambda;
                 break status;
             }
-            if near {
+            if near || feasible {
                 // Close to feasible: solve tightly from here on, so that a
                 // projection starts from an accurate minimum.
                 tight = true;
@@ -269,23 +312,28 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// to 4 times otherwise). Whether the violation ends under
     /// `tolerance`.
     ///
-    /// It runs once, after the outer loop, where the augmented Lagrangian
-    /// has come within [`PROJECT_BELOW`] but its inner problems are too
-    /// stiff (the penalty at 1e6 and more) for their line searches to
-    /// gain the last digits. It allocates (its system's size depends on the
-    /// active set); the iteration loop does not.
+    /// It runs where the augmented Lagrangian has come within
+    /// [`PROJECT_BELOW`] and its multiplier updates stopped shrinking the
+    /// violation, or the outer loop can do no more: its inner problems are
+    /// then too stiff (the penalty at 1e6 and more) for their line searches
+    /// to gain the last digits. It polls `interrupted` between steps, skips
+    /// a system of more than [`PROJECTION_ENTRIES`] entries, and allocates
+    /// (its system's size depends on the active set); the iteration loops
+    /// do not.
     #[allow(non_snake_case)]
     fn project<D: DiscreteDynamics<NX, NU>>(
         &mut self,
         dynamics: &D,
         constraints: &Constraints<NX, NU>,
         tolerance: f64,
-    ) -> bool {
+        interrupted: &impl Fn() -> Option<Status>,
+    ) -> Projection {
         use nalgebra::{DMatrix, DVector};
         let n = self.us.len();
         let mut violation = constraints.violation(&self.xs, &self.us);
+        let mut moved = false;
         for _ in 0..PROJECTION_STEPS {
-            if violation <= 0.1 * tolerance {
+            if violation <= 0.1 * tolerance || interrupted().is_some() {
                 break;
             }
             for k in 0..n {
@@ -311,7 +359,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     }
                 }
             }
-            if rows.is_empty() || rows.len() > PROJECTION_ROWS {
+            // Its system is dense: rows × N·NU entries.
+            if rows.is_empty() || rows.len() * n * NU > PROJECTION_ENTRIES {
                 break;
             }
             // A control at a bound stays there: its columns are zero.
@@ -379,6 +428,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     std::mem::swap(&mut self.us, &mut self.us_new);
                     violation = v;
                     improved = true;
+                    moved = true;
                     break;
                 }
                 alpha *= 0.5;
@@ -387,7 +437,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 break;
             }
         }
-        violation <= tolerance
+        if violation <= tolerance {
+            Projection::Feasible
+        } else if moved {
+            Projection::Moved
+        } else {
+            Projection::Unchanged
+        }
     }
 
     /// The gains about the projected trajectory: a backward pass of the
