@@ -96,6 +96,26 @@ pub fn violation(c: f64, equality: bool) -> f64 {
     }
 }
 
+/// A component `sign·x_index − const` with its value: gradient `sign`
+/// along state axis `index`, nothing in the controls.
+fn along_axis<const NX: usize, const NU: usize>(
+    value: f64,
+    index: usize,
+    sign: f64,
+) -> (f64, SVector<f64, NX>, SVector<f64, NU>) {
+    let mut c_x = SVector::zeros();
+    c_x[index] = sign;
+    (value, c_x, SVector::zeros())
+}
+
+/// The position `(x[position.0], x[position.1])` of a state in the plane.
+pub(crate) fn position_of<const NX: usize>(
+    x: &SVector<f64, NX>,
+    position: (usize, usize),
+) -> Vector2<f64> {
+    Vector2::new(x[position.0], x[position.1])
+}
+
 /// `lower ≤ x_k ≤ upper` at every state after the initial one; infinite
 /// bounds are skipped. Components: one per finite bound, upper ones
 /// (`x_i − upper_i`) first, then lower ones (`lower_i − x_i`).
@@ -147,12 +167,10 @@ impl<const NX: usize, const NU: usize> Constraint<NX, NU> for StateBounds<NX> {
         u: &SVector<f64, NU>,
     ) -> (f64, SVector<f64, NX>, SVector<f64, NU>) {
         let (index, sign, _) = self.parts[i];
-        let mut c_x = SVector::zeros();
-        c_x[index] = sign;
-        (
+        along_axis(
             <Self as Constraint<NX, NU>>::value(self, i, x, u),
-            c_x,
-            SVector::zeros(),
+            index,
+            sign,
         )
     }
 }
@@ -216,12 +234,10 @@ impl<const NX: usize, const NU: usize> Constraint<NX, NU> for GoalTolerance<NX> 
         u: &SVector<f64, NU>,
     ) -> (f64, SVector<f64, NX>, SVector<f64, NU>) {
         let (index, sign, _, _) = self.parts[i];
-        let mut c_x = SVector::zeros();
-        c_x[index] = sign;
-        (
+        along_axis(
             <Self as Constraint<NX, NU>>::value(self, i, x, u),
-            c_x,
-            SVector::zeros(),
+            index,
+            sign,
         )
     }
 }
@@ -361,12 +377,6 @@ pub struct Clearance {
     pub position: (usize, usize),
 }
 
-impl Clearance {
-    fn point<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
-        Vector2::new(x[self.position.0], x[self.position.1])
-    }
-}
-
 impl<const NX: usize, const NU: usize> Constraint<NX, NU> for Clearance {
     fn dim(&self) -> usize {
         1
@@ -377,7 +387,7 @@ impl<const NX: usize, const NU: usize> Constraint<NX, NU> for Clearance {
     }
 
     fn value(&self, _i: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
-        self.clearance - self.region.signed_distance(&self.point(x))
+        self.clearance - self.region.signed_distance(&position_of(x, self.position))
     }
 
     fn linearize(
@@ -386,7 +396,7 @@ impl<const NX: usize, const NU: usize> Constraint<NX, NU> for Clearance {
         x: &SVector<f64, NX>,
         _u: &SVector<f64, NU>,
     ) -> (f64, SVector<f64, NX>, SVector<f64, NU>) {
-        let d = self.region.distance(&self.point(x));
+        let d = self.region.distance(&position_of(x, self.position));
         let mut c_x = SVector::zeros();
         c_x[self.position.0] = -d.gradient.x;
         c_x[self.position.1] = -d.gradient.y;

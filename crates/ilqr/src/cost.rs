@@ -16,7 +16,7 @@
 
 use nalgebra::{Matrix2, SMatrix, SVector, Vector2};
 
-use crate::constraint::Region;
+use crate::constraint::{Region, position_of};
 
 /// Second-order model of a stage cost at `(x, u)`: the `l_x`, `l_u`, `l_xx`,
 /// `l_uu`, `l_ux` of eqs. 18–23.
@@ -418,12 +418,23 @@ impl ExpObstacle {
         hess: &Matrix2<f64>,
         e: &mut StageExpansion<NX, NU>,
     ) {
-        let idx = [self.position.0, self.position.1];
-        for a in 0..2 {
-            e.l_x[idx[a]] += grad[a];
-            for b in 0..2 {
-                e.l_xx[(idx[a], idx[b])] += hess[(a, b)];
-            }
+        add_in_plane(self.position, grad, hess, e);
+    }
+}
+
+/// Add a term's gradient and Hessian in the plane's position (state
+/// entries `position`) into `e`.
+fn add_in_plane<const NX: usize, const NU: usize>(
+    position: (usize, usize),
+    grad: &Vector2<f64>,
+    hess: &Matrix2<f64>,
+    e: &mut StageExpansion<NX, NU>,
+) {
+    let idx = [position.0, position.1];
+    for a in 0..2 {
+        e.l_x[idx[a]] += grad[a];
+        for b in 0..2 {
+            e.l_xx[(idx[a], idx[b])] += hess[(a, b)];
         }
     }
 }
@@ -446,36 +457,26 @@ pub struct ShapeObstacle {
 }
 
 impl ShapeObstacle {
-    fn point<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
-        Vector2::new(x[self.position.0], x[self.position.1])
-    }
-
     fn add<const NX: usize, const NU: usize>(
         &self,
         x: &SVector<f64, NX>,
         convex: bool,
         e: &mut StageExpansion<NX, NU>,
     ) {
-        let d = self.region.distance(&self.point(x));
+        let d = self.region.distance(&position_of(x, self.position));
         let value = self.weight * (-d.value).exp();
         let grad = -d.gradient * value;
         let mut hess = d.gradient * d.gradient.transpose() * value;
         if !convex {
             hess -= d.hessian * value;
         }
-        let idx = [self.position.0, self.position.1];
-        for a in 0..2 {
-            e.l_x[idx[a]] += grad[a];
-            for b in 0..2 {
-                e.l_xx[(idx[a], idx[b])] += hess[(a, b)];
-            }
-        }
+        add_in_plane(self.position, &grad, &hess, e);
     }
 }
 
 impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ShapeObstacle {
     fn value(&self, _k: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
-        self.weight * (-self.region.signed_distance(&self.point(x))).exp()
+        self.weight * (-self.region.signed_distance(&position_of(x, self.position))).exp()
     }
 
     fn expand(

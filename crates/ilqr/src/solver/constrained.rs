@@ -209,19 +209,16 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // projection closes the last gap at a cost change of about
                 // λ·violation, where more outer iterations would stiffen
                 // the inner problems past what their line searches resolve.
-                Status::Converged | Status::NoProgress if tight && near && stalled => {
-                    match self.project(dynamics, constraints, tolerance, &interrupted) {
-                        Projection::Feasible => {
-                            self.gains_after_projection(dynamics, &augmented, options, &mut state);
-                            Some(Status::Converged)
-                        }
-                        Projection::Moved => {
-                            state.gains.current = false;
-                            None
-                        }
-                        Projection::Unchanged => None,
-                    }
-                }
+                Status::Converged | Status::NoProgress if tight && near && stalled => self
+                    .settle_by_projection(
+                        dynamics,
+                        constraints,
+                        &augmented,
+                        options,
+                        &mut state,
+                        &interrupted,
+                    )
+                    .then_some(Status::Converged),
                 _ if outer >= options.max_outer_iterations
                     || (rho >= options.penalty_max && violation > (1.0 - STALL) * previous) =>
                 {
@@ -230,27 +227,22 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     // finish the job; an inner solve cut short by its cap
                     // has not settled.
                     let settled = matches!(inner, Status::Converged | Status::NoProgress);
-                    let projected = if (near || feasible) && settled {
-                        self.project(dynamics, constraints, tolerance, &interrupted)
+                    if (near || feasible)
+                        && settled
+                        && self.settle_by_projection(
+                            dynamics,
+                            constraints,
+                            &augmented,
+                            options,
+                            &mut state,
+                            &interrupted,
+                        )
+                    {
+                        Some(Status::Converged)
+                    } else if constraints.violation(&self.xs, &self.us) <= tolerance {
+                        Some(Status::MaxIterations)
                     } else {
-                        Projection::Unchanged
-                    };
-                    match projected {
-                        Projection::Feasible => {
-                            self.gains_after_projection(dynamics, &augmented, options, &mut state);
-                            Some(Status::Converged)
-                        }
-                        Projection::Moved | Projection::Unchanged => {
-                            if projected == Projection::Moved {
-                                state.gains.current = false;
-                            }
-                            let violation = constraints.violation(&self.xs, &self.us);
-                            Some(if violation <= tolerance {
-                                Status::MaxIterations
-                            } else {
-                                Status::Infeasible
-                            })
-                        }
+                        Some(Status::Infeasible)
                     }
                 }
                 _ => None,
@@ -443,6 +435,41 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             Projection::Moved
         } else {
             Projection::Unchanged
+        }
+    }
+
+    /// [`Solver::project`], then the gains it leaves: a backward pass about
+    /// the projected trajectory where it reached the tolerance (whether
+    /// it did), the gains flagged as about the previous iterate where it
+    /// moved without reaching it.
+    fn settle_by_projection<D, C>(
+        &mut self,
+        dynamics: &D,
+        constraints: &Constraints<NX, NU>,
+        cost: &C,
+        options: &Options,
+        state: &mut LoopState,
+        interrupted: &impl Fn() -> Option<Status>,
+    ) -> bool
+    where
+        D: DiscreteDynamics<NX, NU>,
+        C: Cost<NX, NU>,
+    {
+        match self.project(
+            dynamics,
+            constraints,
+            options.constraint_tolerance,
+            interrupted,
+        ) {
+            Projection::Feasible => {
+                self.gains_after_projection(dynamics, cost, options, state);
+                true
+            }
+            Projection::Moved => {
+                state.gains.current = false;
+                false
+            }
+            Projection::Unchanged => false,
         }
     }
 
