@@ -713,6 +713,22 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
             }
         );
     }
+    // A search lists its starts; a single solve's one start is the result.
+    if r.starts.len() > 1 {
+        for (i, st) in r.starts.iter().enumerate() {
+            s += &format!(
+                "{:<17}{:<22} {:<14} cost {:.6}, {} iterations{}{}\n",
+                format!("start {i}"),
+                st.label,
+                st.status.as_str(),
+                st.cost,
+                st.iterations,
+                st.guide_iterations
+                    .map_or(String::new(), |g| format!(" (+{g} guiding)")),
+                if st.chosen { "  <- chosen" } else { "" }
+            );
+        }
+    }
     s += &format!("solve time       {:.3} ms\n", r.solve_time_ms);
     s
 }

@@ -9,13 +9,11 @@
 //! changes when a model is added. `docs/models.md` walks through it.
 
 use std::marker::PhantomData;
-use std::sync::atomic::AtomicBool;
-use std::time::Duration;
 
 use ilqr::{Model, Parameter, Quadrotor2D, Quantity, Unicycle};
 
 use crate::problem::{Obstacle, ProblemSpec};
-use crate::solve::{SolveResult, TraceEntry, Unsolvable};
+use crate::solve::{Call, SolveResult, Unsolvable};
 
 /// Every model, the default (`{}`'s, [`DEFAULT_MODEL`]) first.
 pub static MODELS: [&dyn ServedModel; 2] = [
@@ -118,15 +116,9 @@ pub trait ServedModel: Send + Sync {
     /// (one per [`ServedModel::parameters`] entry): the default initial
     /// guess.
     fn rest_controls(&self, parameters: &[f64]) -> Vec<f64>;
-    /// Solve a validated problem of this model, reporting each iteration
-    /// to `progress` (see [`crate::solve::solve_observed`]).
-    fn solve(
-        &self,
-        spec: &ProblemSpec,
-        time_limit: Option<Duration>,
-        cancel: &AtomicBool,
-        progress: &mut dyn FnMut(&TraceEntry),
-    ) -> Result<SolveResult, Unsolvable>;
+    /// Solve a validated problem of this model (see
+    /// [`crate::solve::solve_observed`]).
+    fn solve(&self, call: Call<'_>) -> Result<SolveResult, Unsolvable>;
 }
 
 /// The [`ServedModel`] of the `ilqr` model `M`, with `NX` states and `NU`
@@ -190,14 +182,8 @@ where
             .to_vec()
     }
 
-    fn solve(
-        &self,
-        spec: &ProblemSpec,
-        time_limit: Option<Duration>,
-        cancel: &AtomicBool,
-        progress: &mut dyn FnMut(&TraceEntry),
-    ) -> Result<SolveResult, Unsolvable> {
-        crate::solve::solve_model::<M, NX, NU>(spec, time_limit, cancel, progress)
+    fn solve(&self, call: Call<'_>) -> Result<SolveResult, Unsolvable> {
+        crate::solve::solve_model::<M, NX, NU>(call)
     }
 }
 

@@ -13,13 +13,15 @@
 
 use std::any::Any;
 use std::cell::RefCell;
-use std::sync::atomic::AtomicBool;
-use std::time::Duration;
+use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
+use std::sync::{Arc, mpsc};
+use std::time::{Duration, Instant};
 
 use ilqr::{
     Clearance, Constraint, Constraints, ControlBounds, ControlEffort, Cost, DiscreteDynamics,
     Euler, ExpObstacle, GoalTolerance, Model, Objective, Options, Problem, Region, Rk4, Shape,
-    ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking,
+    ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking, ViaPoint,
+    search::{self, Detour},
 };
 use nalgebra::{SVector, Vector2};
 use serde::{Deserialize, Serialize};
@@ -186,7 +188,15 @@ pub struct SolveResult {
     /// reached, a path through a soft obstacle, a control the hardware
     /// cannot produce. Empty when there is nothing to say.
     pub warnings: Vec<Warning>,
-    /// Time spent solving, in ms.
+    /// The starts solved from, in the order they were built: the plain
+    /// start first, then (when `solver.multi_start` searches) the detours
+    /// around the obstacles in the way. The result, its `trace` and its
+    /// `gains` are those of the one marked `chosen`: the cheapest that
+    /// converged (see docs/solver.md, "Searching over routes").
+    pub starts: Vec<StartReport>,
+    /// Wall-clock time spent solving, in ms: every start's, which run side
+    /// by side on idle workers (the sum of the starts' `solve_time_ms` is
+    /// the CPU time).
     pub solve_time_ms: f64,
     /// Time spent waiting for a worker, in ms (0 outside the service).
     pub queue_time_ms: f64,
@@ -284,6 +294,65 @@ impl WarningCode {
     }
 }
 
+/// One start of a solve, and how its solve ended.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
+pub struct StartReport {
+    /// Which way it went: `rest controls` (the model's rest: hover for the
+    /// quadrotor), `initial_controls` or `warm_start` for the plain start;
+    /// for a detour, the compass side of the obstacle its via-point is on,
+    /// e.g. `east of obstacle 0` (x is east, y north).
+    pub label: String,
+    /// A detour's obstacle (its index in `obstacles`).
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0)]
+    pub obstacle: Option<usize>,
+    /// A detour's side of the straight path from the initial to the goal
+    /// position, facing the goal.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub side: Option<DetourSide>,
+    /// How its solve ended.
+    pub status: SolveStatus,
+    /// Its final cost.
+    pub cost: f64,
+    /// Its solve's iterations.
+    pub iterations: usize,
+    /// A detour's guiding solve's iterations (the cost plus a via-point
+    /// beside the obstacle, from the plain start; at most 15), not counted
+    /// in `iterations`.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0)]
+    pub guide_iterations: Option<usize>,
+    /// Its largest hard-constraint violation (0 without hard constraints).
+    #[schema(minimum = 0.0)]
+    pub constraint_violation: f64,
+    /// Its time, the guiding solve included, ms.
+    pub solve_time_ms: f64,
+    /// Whether the result is this start's.
+    pub chosen: bool,
+}
+
+/// A side of the straight path, facing from the initial position to the
+/// goal.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize, ToSchema)]
+#[serde(rename_all = "snake_case")]
+pub enum DetourSide {
+    /// Passing the obstacle with it on the right.
+    Left,
+    /// Passing the obstacle with it on the left.
+    Right,
+}
+
+impl DetourSide {
+    /// The wire name.
+    pub fn as_str(self) -> &'static str {
+        match self {
+            Self::Left => "left",
+            Self::Right => "right",
+        }
+    }
+}
+
 /// How far from the goal position (m) the final position may end before
 /// [`WarningCode::GoalNotReached`].
 pub const GOAL_WARNING_DISTANCE: f64 = 0.1;
@@ -369,17 +438,54 @@ pub struct TraceEntry {
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false, minimum = 0.0)]
     pub penalty: Option<f64>,
+    /// In a progress stream of a search: the start (index in the result's
+    /// `starts`) the iteration belongs to. Absent in the result's `trace`,
+    /// which is the chosen start's.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false, minimum = 0)]
+    pub start: Option<usize>,
 }
 
 /// A problem that passed validation but cannot be solved as posed.
 #[derive(Debug, Clone, PartialEq)]
 pub struct Unsolvable(pub FieldError);
 
+/// A job of a search that another thread may run.
+pub type Helper = Box<dyn FnOnce() + Send + 'static>;
+
+/// Where a search may run its starts besides the calling thread (see
+/// [`solve_shared`]).
+pub struct Helpers<'a> {
+    /// The problem, for the other threads.
+    pub spec: Arc<ProblemSpec>,
+    /// The solve's cancellation flag, polled by every start.
+    pub cancel: Arc<AtomicBool>,
+    /// Runs a job on an idle thread now, or hands it back when none is
+    /// idle.
+    pub lend: Lend<'a>,
+}
+
+/// A solve as a model's entry runs it: the problem, its budget, its
+/// cancellation flag, where each iteration's row goes, and where starts of
+/// a search may run besides this thread.
+pub struct Call<'a> {
+    /// The validated problem.
+    pub spec: &'a ProblemSpec,
+    /// The wall-clock budget of the whole solve, every start included.
+    pub time_limit: Option<Duration>,
+    /// Polled with the budget.
+    pub cancel: &'a AtomicBool,
+    /// Each iteration's trace row, as it ends.
+    pub progress: &'a mut dyn FnMut(&TraceEntry),
+    /// Other threads for a search's starts; `None`: all on this one.
+    pub helpers: Option<Helpers<'a>>,
+}
+
 /// Solve a problem that [`ProblemSpec::validate`] accepted, within the
 /// wall-clock budget `time_limit` (the caller decides it: the CLI uses
 /// `solver.time_limit_ms`, the service also counts the time spent queued).
 /// `cancel` is polled with the budget, every iteration and every 128 knots
-/// of a pass.
+/// of a pass. A search's starts run one after another on this thread.
 pub fn solve(
     spec: &ProblemSpec,
     time_limit: Option<Duration>,
@@ -391,15 +497,46 @@ pub fn solve(
 /// [`solve`], calling `progress` with each iteration's trace row as soon
 /// as the iteration ends, on the solving thread (a stream of progress to a
 /// caller). The rows are those of the result's `trace`, whatever
-/// `output.trace` says.
+/// `output.trace` says; in a search of several starts, every start's rows,
+/// each with its `start`.
 pub fn solve_observed(
     spec: &ProblemSpec,
     time_limit: Option<Duration>,
     cancel: &AtomicBool,
     progress: &mut dyn FnMut(&TraceEntry),
 ) -> Result<SolveResult, Unsolvable> {
-    match spec.model.served() {
-        Some(model) => model.solve(spec, time_limit, cancel, progress),
+    dispatch(Call {
+        spec,
+        time_limit,
+        cancel,
+        progress,
+        helpers: None,
+    })
+}
+
+/// [`solve_observed`], with a search's starts also run on the threads
+/// `helpers.lend` finds idle. Rows of starts on other threads reach
+/// `progress` on this thread, when it next reports a row of its own or
+/// once its own starts are done.
+pub fn solve_shared(
+    helpers: Helpers<'_>,
+    time_limit: Option<Duration>,
+    progress: &mut dyn FnMut(&TraceEntry),
+) -> Result<SolveResult, Unsolvable> {
+    let spec = Arc::clone(&helpers.spec);
+    let cancel = Arc::clone(&helpers.cancel);
+    dispatch(Call {
+        spec: &spec,
+        time_limit,
+        cancel: &cancel,
+        progress,
+        helpers: Some(helpers),
+    })
+}
+
+fn dispatch(call: Call<'_>) -> Result<SolveResult, Unsolvable> {
+    match call.spec.model.served() {
+        Some(model) => model.solve(call),
         None => Err(Unsolvable(FieldError {
             pointer: "/model/type".into(),
             detail: format!("unknown model: expected one of {}", crate::models::names()),
@@ -407,27 +544,288 @@ pub fn solve_observed(
     }
 }
 
-/// [`solve`] for the model `M`: builds its problem in the solver's types
-/// and runs it with the problem's integrator.
+/// Where a start's initial guess comes from.
+#[derive(Debug, Clone, Copy)]
+enum Start {
+    /// The plain initial guess: the given controls or the model's rest.
+    Plain,
+    /// The plain guess bent past an obstacle by a guiding solve.
+    Detour(Detour),
+}
+
+/// A start's outcome.
+struct Attempt {
+    result: SolveResult,
+    /// With a detour: the guiding solve's iterations.
+    guide_iterations: Option<usize>,
+}
+
+/// The iterations a guiding solve may take: it only has to bend the guess
+/// to one side; the real solve does the rest.
+const GUIDE_ITERATIONS: usize = 15;
+/// The guiding solve's relative tolerance, loose for the same reason.
+const GUIDE_TOLERANCE: f64 = 1e-3;
+/// A start replaces an earlier one only when cheaper by more than this
+/// share of the cost: two starts that reach one optimum differ by about
+/// the solver's tolerance, and the earlier start (the plain one first)
+/// keeps it.
+pub const NEAR_TIE: f64 = 1e-6;
+
+/// [`solve`] for the model `M`: the starts (one, or a search's several),
+/// each built in the solver's types and run with the problem's
+/// integrator, and the best of them.
 pub(crate) fn solve_model<M, const NX: usize, const NU: usize>(
-    spec: &ProblemSpec,
-    time_limit: Option<Duration>,
-    cancel: &AtomicBool,
-    progress: &mut dyn FnMut(&TraceEntry),
+    call: Call<'_>,
 ) -> Result<SolveResult, Unsolvable>
 where
     M: Model<NX, NU> + 'static,
 {
+    let Call {
+        spec,
+        time_limit,
+        cancel,
+        progress,
+        helpers,
+    } = call;
+    let started = Instant::now();
+    let deadline = time_limit.and_then(|t| started.checked_add(t));
+    let starts = Arc::new(starts::<M, NX, NU>(spec));
+    let n = starts.len();
+    let mut attempts = if n == 1 {
+        vec![attempt::<M, NX, NU>(
+            spec, starts[0], deadline, cancel, progress,
+        )]
+    } else {
+        let here = |i: usize, progress: &mut dyn FnMut(&TraceEntry)| {
+            attempt::<M, NX, NU>(spec, starts[i], deadline, cancel, progress)
+        };
+        let lent = helpers.map(|h| {
+            let (spec, cancel, starts) = (h.spec, h.cancel, Arc::clone(&starts));
+            let run: Arc<StartFn> = Arc::new(move |i, progress| {
+                attempt::<M, NX, NU>(&spec, starts[i], deadline, &cancel, progress)
+            });
+            (h.lend, run)
+        });
+        search(n, &here, lent, progress)
+    };
+    // Every start builds the same problem: one that cannot be solved fails
+    // them all alike, and the first says why.
+    if let Some(at) = attempts.iter().position(Result::is_err) {
+        return Err(attempts.swap_remove(at).err().expect("an error at `at`"));
+    }
+    let attempts: Vec<Attempt> = attempts.into_iter().flatten().collect();
+    let chosen = choose(&attempts, spec.solver.constraint_tolerance);
+    let rows = attempts
+        .iter()
+        .zip(starts.iter())
+        .enumerate()
+        .map(|(i, (a, start))| start_report(spec, start, a, i == chosen))
+        .collect();
+    let mut result = attempts
+        .into_iter()
+        .nth(chosen)
+        .expect("`choose` picks one of the attempts")
+        .result;
+    result.starts = rows;
+    result.solve_time_ms = millis(started.elapsed());
+    Ok(result)
+}
+
+/// Runs start `i`, sending its rows to the callback.
+type StartFn =
+    dyn Fn(usize, &mut dyn FnMut(&TraceEntry)) -> Result<Attempt, Unsolvable> + Send + Sync;
+
+/// Runs start `i` on this thread.
+type HereFn<'a> = dyn Fn(usize, &mut dyn FnMut(&TraceEntry)) -> Result<Attempt, Unsolvable> + 'a;
+
+/// Runs a job on an idle thread now, or hands it back ([`Helpers::lend`]).
+pub type Lend<'a> = &'a (dyn Fn(Helper) -> Result<(), Helper> + Sync);
+
+/// What a start run on another thread reports.
+enum Message {
+    Row(usize, TraceEntry),
+    // Boxed: an attempt is a whole result, a row is small and many.
+    Done(usize, Box<Result<Attempt, Unsolvable>>),
+}
+
+/// Run starts `0..n`: on this thread with `here`, and, where `lent` finds
+/// idle threads, also on them. Every thread takes the next start not yet
+/// taken, so a helper that is late finds nothing left and ends; this
+/// thread waits only for starts already running elsewhere. Under load no
+/// thread is idle and the starts run one after another here.
+fn search(
+    n: usize,
+    here: &HereFn<'_>,
+    lent: Option<(Lend<'_>, Arc<StartFn>)>,
+    progress: &mut dyn FnMut(&TraceEntry),
+) -> Vec<Result<Attempt, Unsolvable>> {
+    let next = Arc::new(AtomicUsize::new(0));
+    let (tx, rx) = mpsc::channel::<Message>();
+    if let Some((lend, run)) = lent {
+        for _ in 1..n {
+            let (next, tx, run) = (Arc::clone(&next), tx.clone(), Arc::clone(&run));
+            let job: Helper = Box::new(move || {
+                loop {
+                    let i = next.fetch_add(1, Ordering::SeqCst);
+                    if i >= n {
+                        break;
+                    }
+                    let outcome = run(i, &mut |row| {
+                        let _ = tx.send(Message::Row(i, row.clone()));
+                    });
+                    let _ = tx.send(Message::Done(i, Box::new(outcome)));
+                }
+            });
+            if lend(job).is_err() {
+                break;
+            }
+        }
+    }
+    drop(tx);
+    let mut done: Vec<Option<Result<Attempt, Unsolvable>>> = (0..n).map(|_| None).collect();
+    let take = |m: Message,
+                done: &mut Vec<Option<Result<Attempt, Unsolvable>>>,
+                progress: &mut dyn FnMut(&TraceEntry)| match m {
+        Message::Row(i, row) => progress(&TraceEntry {
+            start: Some(i),
+            ..row
+        }),
+        Message::Done(i, outcome) => done[i] = Some(*outcome),
+    };
+    loop {
+        let i = next.fetch_add(1, Ordering::SeqCst);
+        if i >= n {
+            break;
+        }
+        let outcome = here(i, &mut |row| {
+            while let Ok(m) = rx.try_recv() {
+                take(m, &mut done, progress);
+            }
+            progress(&TraceEntry {
+                start: Some(i),
+                ..row.clone()
+            });
+        });
+        done[i] = Some(outcome);
+    }
+    while done.iter().any(Option::is_none) {
+        match rx.recv() {
+            Ok(m) => take(m, &mut done, progress),
+            // Every helper has ended, one without reporting its start.
+            Err(_) => break,
+        }
+    }
+    done.into_iter()
+        .map(|d| d.unwrap_or_else(|| panic!("a start of the search panicked on another thread")))
+        .collect()
+}
+
+/// The start to keep: the cheapest that converged; failing that the
+/// cheapest that meets the constraints; failing that the least violating.
+/// Ties and near-ties ([`NEAR_TIE`]) go to the earlier start, so the
+/// choice is the same whatever order the starts ended in.
+fn choose(attempts: &[Attempt], constraint_tolerance: f64) -> usize {
+    let class = |r: &SolveResult| {
+        if r.status == SolveStatus::Converged {
+            0
+        } else if r.constraint_violation <= constraint_tolerance {
+            1
+        } else {
+            2
+        }
+    };
+    let key = |r: &SolveResult| {
+        if class(r) == 2 {
+            r.constraint_violation
+        } else {
+            r.cost
+        }
+    };
+    let mut best = 0;
+    for (i, a) in attempts.iter().enumerate().skip(1) {
+        let (a, b) = (&a.result, &attempts[best].result);
+        let better = match class(a).cmp(&class(b)) {
+            std::cmp::Ordering::Less => true,
+            std::cmp::Ordering::Greater => false,
+            std::cmp::Ordering::Equal => key(a) < key(b) - NEAR_TIE * key(b).abs(),
+        };
+        if better {
+            best = i;
+        }
+    }
+    best
+}
+
+/// The starts of `spec`: the plain one, then (when it searches) the
+/// detours around the obstacles in the way, up to `solver.max_starts` in
+/// all.
+fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec) -> Vec<Start> {
+    let mut out = vec![Start::Plain];
+    if !spec.searches() || spec.obstacles.is_empty() {
+        return out;
+    }
+    let (px, py) = M::POSITION;
+    let at = |x: &[f64]| {
+        Vector2::new(
+            x.get(px).copied().unwrap_or(f64::NAN),
+            x.get(py).copied().unwrap_or(f64::NAN),
+        )
+    };
+    let (from, to) = (at(&spec.initial_state), at(&spec.goal_state));
+    // Beyond what an obstacle keeps itself, 5% of the straight path: a
+    // hard obstacle with no clearance still gets its via-points off its
+    // boundary.
+    let spare = 0.05 * (to - from).norm();
+    let obstacles: Vec<search::Obstacle> = spec
+        .obstacles
+        .iter()
+        .map(|o| search::Obstacle {
+            region: region(o),
+            margin: o.clearance.unwrap_or(0.0) + soft_reach(o.weight) + spare,
+        })
+        .collect();
+    let detours = search::detours(from, to, spec.horizon, &obstacles);
+    out.extend(
+        detours
+            .into_iter()
+            .take(spec.solver.max_starts.saturating_sub(1))
+            .map(Start::Detour),
+    );
+    out
+}
+
+/// How far from its boundary (m) a soft obstacle of weight `q` keeps an
+/// optimal path, roughly: `ln(1 + q) / 2` (the seed's `q = 1000` gives
+/// 3.5 m; its optimal paths pass at 2.9 and 3.0 m). Only where the detours
+/// go depends on it: the real solve finds the distance itself.
+fn soft_reach(q: f64) -> f64 {
+    if q > 0.0 { q.ln_1p() / 2.0 } else { 0.0 }
+}
+
+/// Solve from one start: for a detour, first the guiding solve (the cost
+/// plus a via-point, from the plain guess), then the problem itself from
+/// the guiding solve's controls.
+fn attempt<M, const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    start: Start,
+    deadline: Option<Instant>,
+    cancel: &AtomicBool,
+    progress: &mut dyn FnMut(&TraceEntry),
+) -> Result<Attempt, Unsolvable>
+where
+    M: Model<NX, NU> + 'static,
+{
+    let started = Instant::now();
     let values: Vec<f64> = M::PARAMETERS
         .iter()
         .map(|p| spec.model.get(p.name).unwrap_or(p.default))
         .collect();
     let model = M::from_parameters(&values);
-    let u_init = initial_controls::<M, NX, NU>(spec, &model)?;
+    let plain = initial_controls::<M, NX, NU>(spec, &model)?;
     let options = Options {
         max_iterations: spec.solver.max_iterations,
         tolerance: spec.solver.tolerance,
-        time_limit,
+        time_limit: deadline.map(|d| d.saturating_duration_since(Instant::now())),
         // Every term is non-negative (validation keeps weights ≥ 0), so a
         // cost of 0 is a global optimum.
         cost_lower_bound: Some(0.0),
@@ -436,30 +834,180 @@ where
         ..Options::default()
     };
     let cost = objective::<NX, NU>(spec, M::POSITION)?;
+    let guide = match start {
+        Start::Plain => None,
+        Start::Detour(d) => Some(
+            objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPoint {
+                point: d.via,
+                knot: d.knot,
+                weight: guide_weight::<NX>(spec, M::POSITION),
+                position: M::POSITION,
+            }),
+        ),
+    };
     let constraints = hard_constraints::<NX, NU>(spec, M::POSITION)?;
     let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
     let (dt, horizon) = (spec.dt, spec.horizon);
+    let built = Built {
+        cost,
+        guide,
+        x0,
+        plain,
+        deadline,
+    };
     let run = (&options, &constraints, cancel, progress);
-    with_solver(horizon, |solver| match spec.integrator {
+    let mut attempt = with_solver(horizon, |solver| match spec.integrator {
         Integrator::Euler => {
-            let problem = Problem {
-                dynamics: Euler { model, dt },
-                cost,
-                x0,
-                horizon,
-            };
-            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, run)
+            attempt_on::<M, _, NX, NU>(solver, spec, Euler { model, dt }, built, run)
         }
-        Integrator::Rk4 => {
-            let problem = Problem {
-                dynamics: Rk4 { model, dt },
-                cost,
-                x0,
-                horizon,
-            };
-            solve_on::<M, _, _, NX, NU>(solver, spec, &problem, &u_init, run)
+        Integrator::Rk4 => attempt_on::<M, _, NX, NU>(solver, spec, Rk4 { model, dt }, built, run),
+    })?;
+    attempt.result.solve_time_ms = millis(started.elapsed());
+    Ok(attempt)
+}
+
+/// A start's problem in the solver's types.
+struct Built<const NX: usize, const NU: usize> {
+    cost: Objective<NX, NU>,
+    /// With a detour: the guiding solve's cost.
+    guide: Option<Objective<NX, NU>>,
+    x0: SVector<f64, NX>,
+    /// The plain initial guess.
+    plain: Vec<SVector<f64, NU>>,
+    deadline: Option<Instant>,
+}
+
+/// The guiding solve (for a detour), then the solve itself, on `solver`.
+fn attempt_on<M, D, const NX: usize, const NU: usize>(
+    solver: &mut Solver<NX, NU>,
+    spec: &ProblemSpec,
+    dynamics: D,
+    built: Built<NX, NU>,
+    (options, constraints, cancel, progress): Run<'_, '_, NX, NU>,
+) -> Result<Attempt, Unsolvable>
+where
+    M: Model<NX, NU>,
+    D: DiscreteDynamics<NX, NU> + Clone,
+{
+    let Built {
+        cost,
+        guide,
+        x0,
+        plain,
+        deadline,
+    } = built;
+    let horizon = spec.horizon;
+    let remaining = || deadline.map(|d| d.saturating_duration_since(Instant::now()));
+    let mut guide_iterations = None;
+    let mut u_init = plain;
+    if let Some(guide) = guide {
+        let problem = Problem {
+            dynamics: dynamics.clone(),
+            cost: guide,
+            x0,
+            horizon,
+        };
+        let guiding = Options {
+            max_iterations: GUIDE_ITERATIONS,
+            tolerance: GUIDE_TOLERANCE,
+            time_limit: remaining(),
+            cost_lower_bound: Some(0.0),
+            ..Options::default()
+        };
+        // Within the control bounds (clamping an unbounded guide's controls
+        // afterwards can send the rollout anywhere), without the other
+        // constraints: the guide only bends the path.
+        let bounds = Constraints {
+            control: constraints.control,
+            other: Vec::new(),
+        };
+        // A guide that fails leaves the plain guess; the solve itself then
+        // says what is wrong with it.
+        if let Ok(summary) =
+            solver.solve_constrained(&problem, &bounds, &u_init, &guiding, cancel, &mut |_| {})
+        {
+            guide_iterations = Some(summary.iterations);
+            u_init = solver.controls().to_vec();
         }
+    }
+    let options = Options {
+        time_limit: remaining(),
+        ..options.clone()
+    };
+    let problem = Problem {
+        dynamics,
+        cost,
+        x0,
+        horizon,
+    };
+    let result = solve_on::<M, _, _, NX, NU>(
+        solver,
+        spec,
+        &problem,
+        &u_init,
+        (&options, constraints, cancel, progress),
+    )?;
+    Ok(Attempt {
+        result,
+        guide_iterations,
     })
+}
+
+/// The guiding solve's via-point weight: ten times the largest terminal
+/// weight on the position (at least 1), so that the via-point wins over
+/// the obstacle's push and the goal's pull.
+fn guide_weight<const NX: usize>(spec: &ProblemSpec, (px, py): (usize, usize)) -> f64 {
+    let w = &spec.weights.terminal;
+    let at = |i: usize| w.get(i).copied().unwrap_or(0.0);
+    10.0 * at(px).max(at(py)).max(1.0)
+}
+
+/// A start's row in the result's `starts`.
+fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bool) -> StartReport {
+    let r = &attempt.result;
+    let (label, obstacle, side) = match start {
+        Start::Plain => {
+            let label = if spec.initial_controls.is_some() {
+                "initial_controls"
+            } else if spec.warm_start.is_some() {
+                "warm_start"
+            } else {
+                "rest controls"
+            };
+            (label.to_owned(), None, None)
+        }
+        Start::Detour(d) => {
+            let v = d.direction;
+            let compass = if v.x.abs() >= v.y.abs() {
+                if v.x > 0.0 { "east" } else { "west" }
+            } else if v.y > 0.0 {
+                "north"
+            } else {
+                "south"
+            };
+            let side = match d.side {
+                search::Side::Left => DetourSide::Left,
+                search::Side::Right => DetourSide::Right,
+            };
+            (
+                format!("{compass} of obstacle {}", d.obstacle),
+                Some(d.obstacle),
+                Some(side),
+            )
+        }
+    };
+    StartReport {
+        label,
+        obstacle,
+        side,
+        status: r.status,
+        cost: r.cost,
+        iterations: r.iterations,
+        guide_iterations: attempt.guide_iterations,
+        constraint_violation: r.constraint_violation,
+        solve_time_ms: r.solve_time_ms,
+        chosen,
+    }
 }
 
 /// The cost of eqs. 13–15: state tracking, control effort, terminal
@@ -718,6 +1266,7 @@ where
         }),
         constraint_report: report,
         warnings,
+        starts: Vec::new(),
         solve_time_ms: millis(summary.solve_time),
         queue_time_ms: 0.0,
     })
@@ -909,6 +1458,7 @@ fn trace_entry(r: &ilqr::TraceRow) -> TraceEntry {
         outer_iteration: (r.outer_iteration > 0).then_some(r.outer_iteration),
         constraint_violation: (r.outer_iteration > 0).then_some(r.constraint_violation),
         penalty: (r.outer_iteration > 0).then_some(r.penalty),
+        start: None,
     }
 }
 

@@ -355,11 +355,33 @@ async fn a_stream_gives_each_iteration_then_the_result() {
         }
     }
     let result = result.expect("no result event");
-    assert_eq!(rows.len(), result.iterations as usize);
-    assert_eq!(rows, result.trace);
-    for (k, row) in rows.iter().enumerate() {
-        assert_eq!(row.iteration as usize, k + 1);
+    // The seed searches: every start's rows, each tagged with its start;
+    // the chosen start's are the trace.
+    assert_eq!(result.starts.len(), 3);
+    for (i, start) in result.starts.iter().enumerate() {
+        let mine: Vec<_> = rows
+            .iter()
+            .filter(|r| r.start == Some(i as u32))
+            .map(|r| proto::TraceEntry { start: None, ..*r })
+            .collect();
+        assert_eq!(mine.len(), start.iterations as usize, "start {i}");
+        for (k, row) in mine.iter().enumerate() {
+            assert_eq!(row.iteration as usize, k + 1);
+        }
+        if start.chosen {
+            assert_eq!(mine, result.trace);
+            assert_eq!(start.cost, result.cost);
+        }
     }
+    assert_eq!(
+        rows.len(),
+        result
+            .starts
+            .iter()
+            .map(|s| s.iterations as usize)
+            .sum::<usize>()
+    );
+    assert!((result.cost - 5418.304).abs() < 1e-3, "{}", result.cost);
     let plain = client
         .solve(proto::SolveRequest { problem: None })
         .await

@@ -37,14 +37,17 @@ fn parse(text: &str) -> Vec<(String, Value)> {
         .collect()
 }
 
-/// One `iteration` event per iteration, each the result's own trace row,
-/// then one `result` event: the answer `/solve` gives for the same problem
-/// (the same iterations and cost; solving is deterministic).
+/// One `iteration` event per iteration of every start, each the start's
+/// own trace row (tagged with its start in a search), then one `result`
+/// event: the answer `/solve` gives for the same problem (the same
+/// iterations and cost; solving is deterministic), whose trace is the
+/// chosen start's rows.
 #[tokio::test]
 async fn a_stream_gives_each_iteration_then_the_result() {
     let s = Server::start(Config::default()).await;
     for doc in [
         json!({}),
+        json!({"solver": {"multi_start": false}}),
         json!({"model": {"type": "unicycle"}, "integrator": "rk4", "output": {"trace": false}}),
     ] {
         let got = events(s.post_to("/solve/stream", &doc).await).await;
@@ -52,13 +55,31 @@ async fn a_stream_gives_each_iteration_then_the_result() {
         assert_eq!(last.0, "result", "{doc}");
         let result = &last.1;
         assert_eq!(result["status"], "converged");
-        let iterations = result["iterations"].as_u64().unwrap() as usize;
-        assert_eq!(rest.len(), iterations, "{doc}");
-        for (k, (event, row)) in rest.iter().enumerate() {
+        let starts = result["starts"].as_array().unwrap();
+        let mut by_start = vec![Vec::new(); starts.len()];
+        for (event, row) in rest {
             assert_eq!(event, "iteration");
-            assert_eq!(row["iteration"], k + 1);
-            if let Some(trace) = result["trace"].as_array() {
-                assert_eq!(row, &trace[k], "{doc}: row {k}");
+            // A single solve's rows are the trace's, untagged.
+            let start = row.get("start").map_or(0, |i| i.as_u64().unwrap() as usize);
+            assert_eq!(row.get("start").is_some(), starts.len() > 1, "{doc}");
+            let mut row = row.clone();
+            row.as_object_mut().unwrap().remove("start");
+            by_start[start].push(row);
+        }
+        for (i, rows) in by_start.iter().enumerate() {
+            assert_eq!(
+                rows.len() as u64,
+                starts[i]["iterations"],
+                "{doc}: start {i}"
+            );
+            for (k, row) in rows.iter().enumerate() {
+                assert_eq!(row["iteration"], k + 1);
+            }
+            if starts[i]["chosen"] == true {
+                assert_eq!(rows.len() as u64, result["iterations"], "{doc}");
+                if let Some(trace) = result["trace"].as_array() {
+                    assert_eq!(rows, trace, "{doc}: the chosen start's rows");
+                }
             }
         }
         let plain: Value = s.post_to("/solve", &doc).await.json().await.unwrap();

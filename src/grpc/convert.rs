@@ -285,6 +285,12 @@ pub fn document(p: proto::Problem) -> Document {
             let value = w.number("/solver/constraint_tolerance", t);
             members.insert("constraint_tolerance".into(), value);
         }
+        if let Some(b) = s.multi_start {
+            members.insert("multi_start".into(), b.into());
+        }
+        if let Some(n) = s.max_starts {
+            members.insert("max_starts".into(), n.into());
+        }
         match method_of(s.method) {
             Ok(None) => {}
             Ok(Some(m)) => {
@@ -579,6 +585,8 @@ pub fn problem_message(spec: &ProblemSpec) -> proto::Problem {
             time_limit_ms: spec.solver.time_limit_ms,
             method: method(spec.solver.method).into(),
             constraint_tolerance: Some(spec.solver.constraint_tolerance),
+            multi_start: spec.solver.multi_start,
+            max_starts: Some(u32_of(spec.solver.max_starts)),
         }),
         constraints: (!spec.constraints.is_empty()).then(|| {
             let c = &spec.constraints;
@@ -652,6 +660,7 @@ pub fn trace_message(t: &TraceEntry) -> proto::TraceEntry {
         outer_iteration: t.outer_iteration.map(u32_of),
         constraint_violation: t.constraint_violation,
         penalty: t.penalty,
+        start: t.start.map(u32_of),
     }
 }
 
@@ -721,6 +730,22 @@ pub fn result_message(r: &SolveResult) -> proto::SolveResult {
             .map(|w| proto::Warning {
                 code: w.code.as_str().into(),
                 message: w.message.clone(),
+            })
+            .collect(),
+        starts: r
+            .starts
+            .iter()
+            .map(|s| proto::Start {
+                label: s.label.clone(),
+                obstacle: s.obstacle.map(u32_of),
+                side: s.side.map(|d| d.as_str().into()),
+                status: status(s.status).into(),
+                cost: s.cost,
+                iterations: u32_of(s.iterations),
+                guide_iterations: s.guide_iterations.map(u32_of),
+                constraint_violation: s.constraint_violation,
+                solve_time_ms: s.solve_time_ms,
+                chosen: s.chosen,
             })
             .collect(),
     }
@@ -937,6 +962,8 @@ mod tests {
                     proptest::option::of(any::<u32>()),
                     proptest::option::of(number()),
                     proptest::option::of(any::<u64>()),
+                    proptest::option::of(any::<bool>()),
+                    proptest::option::of(prop_oneof![0..40u32, Just(u32::MAX)]),
                 )),
             ) -> proto::Problem {
                 proto::Problem {
@@ -963,12 +990,14 @@ mod tests {
                     }),
                     initial_controls,
                     warm_start_controls,
-                    solver: solver.map(|(max_iterations, tolerance, time_limit_ms)| proto::SolverOptions {
+                    solver: solver.map(|(max_iterations, tolerance, time_limit_ms, multi_start, max_starts)| proto::SolverOptions {
                         max_iterations,
                         tolerance,
                         time_limit_ms,
                         method,
                         constraint_tolerance: tolerance,
+                        multi_start,
+                        max_starts,
                     }),
                     output: None,
                     constraints: constraints.map(|(control, state, goal_tolerance)| proto::Constraints {

@@ -440,7 +440,34 @@ pub struct SolverSpec {
     /// from 1e-12 to 1.
     #[schema(default = 1e-6, minimum = 1e-12, maximum = 1.0)]
     pub constraint_tolerance: f64,
+    /// Search over the ways around the obstacles: besides the plain start
+    /// (the model's rest controls, or the given ones), solve from detour
+    /// starts that pass each obstacle in the way on either side, and return
+    /// the best answer (see docs/solver.md, "Searching over routes"; each
+    /// start is listed in the result's `starts`). Default: true, unless
+    /// `initial_controls` or `warm_start` is given, when the solve is the
+    /// single local solve from them. False: the single local solve from
+    /// the plain start, as the paper does it.
+    #[serde(
+        default,
+        deserialize_with = "wire::de_some",
+        skip_serializing_if = "Option::is_none"
+    )]
+    #[schema(nullable = false)]
+    pub multi_start: Option<bool>,
+    /// The most starts a search solves from, the plain start included:
+    /// detours beyond it are left out, those of the obstacles least in the
+    /// way first. Default 7 (the plain start and both sides of three
+    /// obstacles); from 1 to 32.
+    #[serde(deserialize_with = "wire::de_starts")]
+    #[schema(default = 7, minimum = 1, maximum = 32)]
+    pub max_starts: usize,
 }
+
+/// `solver.max_starts` unless given.
+pub const DEFAULT_MAX_STARTS: usize = 7;
+/// The largest `solver.max_starts`.
+pub const MAX_STARTS: usize = 32;
 
 /// Optional parts of the result. Leaving them out shrinks large responses.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize, ToSchema)]
@@ -495,6 +522,14 @@ impl ProblemSpec {
             .or(default)
     }
 
+    /// Whether the solve searches over routes (`solver.multi_start`, or
+    /// its default: only without given controls).
+    pub fn searches(&self) -> bool {
+        self.solver
+            .multi_start
+            .unwrap_or(self.given_controls().is_none())
+    }
+
     /// The initial guess given, from `initial_controls` or a warm start.
     pub fn given_controls(&self) -> Option<&[Vec<f64>]> {
         self.initial_controls
@@ -518,6 +553,8 @@ impl Default for SolverSpec {
             time_limit_ms: None,
             method: Method::Ilqr,
             constraint_tolerance: 1e-6,
+            multi_start: None,
+            max_starts: DEFAULT_MAX_STARTS,
         }
     }
 }

@@ -10,7 +10,8 @@ use utoipa::ToSchema;
 
 use super::recover::{is_at_or_under, num};
 use super::{
-    Limits, MAX_CONTROL, MAX_DT, MAX_ITERATIONS, MAX_OBSTACLES, MAX_STATE, MAX_WEIGHT, ProblemSpec,
+    Limits, MAX_CONTROL, MAX_DT, MAX_ITERATIONS, MAX_OBSTACLES, MAX_STARTS, MAX_STATE, MAX_WEIGHT,
+    ProblemSpec,
 };
 use crate::models::{self, ServedModel};
 use ilqr::Quantity;
@@ -339,6 +340,15 @@ impl ProblemSpec {
                 format!(
                     "must be a number in [0, 1) (relative cost change), got {}",
                     num(s.tolerance)
+                ),
+            );
+        }
+        if !(1..=MAX_STARTS).contains(&s.max_starts) {
+            v.push(
+                "/solver/max_starts",
+                format!(
+                    "must be an integer from 1 to {MAX_STARTS}, got {}",
+                    s.max_starts
                 ),
             );
         }

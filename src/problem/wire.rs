@@ -277,6 +277,10 @@ pub(crate) fn de_iterations<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D:
     de_count(d, ITERATIONS_EXPECTED)
 }
 
+pub(crate) fn de_starts<'de, D: Deserializer<'de>>(d: D) -> Result<usize, D::Error> {
+    de_count(d, STARTS_EXPECTED)
+}
+
 pub(crate) fn de_millis<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, D::Error> {
     d.deserialize_option(OptCount(Count(MILLIS_EXPECTED)))
 }
@@ -284,6 +288,7 @@ pub(crate) fn de_millis<'de, D: Deserializer<'de>>(d: D) -> Result<Option<u64>, 
 const HORIZON_EXPECTED: &str =
     "an integer from 1 to the maximum horizon (10000 unless configured lower)";
 const ITERATIONS_EXPECTED: &str = "an integer from 0 to 10000";
+const STARTS_EXPECTED: &str = "an integer from 1 to 32";
 const MILLIS_EXPECTED: &str =
     "a positive integer (ms; a service takes at most 60000 unless configured), or null";
 
@@ -297,6 +302,7 @@ pub(crate) fn count_expected(pointer: &str, limits: Option<&Limits>) -> Option<C
         ("/horizon", None) => Some(HORIZON_EXPECTED.into()),
         ("/horizon", Some(l)) => Some(format!("an integer from 1 to {}", l.max_horizon).into()),
         ("/solver/max_iterations", _) => Some(ITERATIONS_EXPECTED.into()),
+        ("/solver/max_starts", _) => Some(STARTS_EXPECTED.into()),
         (
             "/solver/time_limit_ms",
             Some(Limits {

@@ -86,7 +86,9 @@ use std::time::{Duration, Instant};
 use tokio::sync::Notify;
 
 use crate::problem::{Invalid, Limits, ProblemSpec};
-use crate::solve::{SolveResult, SolveStatus, TraceEntry, Unsolvable, millis, solve_observed};
+use crate::solve::{
+    Helpers, SolveResult, SolveStatus, TraceEntry, Unsolvable, millis, solve_shared,
+};
 use pool::{Estimate, Pool, Refusal, Ticket, Timing};
 
 /// Weight of the newest sample in the service's moving averages.
@@ -131,10 +133,10 @@ pub struct Settings {
 
 /// What a worker is given to run a solve.
 struct Job<'a> {
-    spec: &'a ProblemSpec,
+    spec: &'a Arc<ProblemSpec>,
     waited: Duration,
     timing: Timing,
-    cancel: &'a AtomicBool,
+    cancel: &'a Arc<AtomicBool>,
     transport: Transport,
 }
 
@@ -422,6 +424,7 @@ impl SolveService {
         };
         let guard = self.admit();
         let cancel = Arc::clone(&guard.flag);
+        let spec = Arc::new(spec);
         let span = tracing::Span::current();
         let service = Arc::clone(self);
         let job_span = span.clone();
@@ -526,7 +529,16 @@ impl SolveService {
                 progress(row);
             }
         };
-        let mut r = match solve_observed(spec, remaining, cancel, &mut report) {
+        // A search's starts also run on idle workers, within the same
+        // deadline and cancellation; under load they run here, one after
+        // another.
+        let lend = |helper| self.pool.lend(timing, helper);
+        let helpers = Helpers {
+            spec: Arc::clone(spec),
+            cancel: Arc::clone(cancel),
+            lend: &lend,
+        };
+        let mut r = match solve_shared(helpers, remaining, &mut report) {
             Ok(r) => r,
             Err(e) => return Outcome::Unsolvable(e),
         };

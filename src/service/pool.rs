@@ -272,6 +272,36 @@ impl Pool {
         })
     }
 
+    /// Run `f` on an idle worker now, for a job already admitted (a start
+    /// of its search, [`crate::solve::Helpers`]), or hand it back when no
+    /// worker is idle: every worker busy, or as many idle as jobs queued
+    /// for them. It goes ahead of the queue (only idle workers take it, so
+    /// it delays nobody) and is not counted against the capacity; a worker
+    /// running it counts as busy with `timing`, so admission sees it.
+    pub fn lend(
+        &self,
+        timing: Timing,
+        f: crate::solve::Helper,
+    ) -> Result<(), crate::solve::Helper> {
+        let mut st = self.shared.lock();
+        if st.closed || st.idle <= st.queue.len() {
+            return Err(f);
+        }
+        let shared = Arc::clone(&self.shared);
+        let job: Job = Box::new(move |worker| {
+            // A panic is its caller's to notice (the start never reports);
+            // the worker lives on.
+            let _ = catch_unwind(AssertUnwindSafe(f));
+            shared.lock().running[worker] = None;
+        });
+        let id = st.next_id;
+        st.next_id += 1;
+        st.queue.push_front(Queued { id, timing, job });
+        drop(st);
+        self.shared.wake.notify_one();
+        Ok(())
+    }
+
     /// The estimated wait for a worker of a job submitted now (see
     /// [`Pool::submit`]).
     pub fn wait(&self, estimate: Estimate) -> Duration {
@@ -471,6 +501,32 @@ mod tests {
         assert!(!t.withdraw());
         release.send(()).unwrap();
         assert_eq!(t.done().await.unwrap().outcome, Ok(()));
+    }
+
+    /// A lent job runs at once on an idle worker, ahead of the queue; with
+    /// no worker idle it is handed back, not queued.
+    #[tokio::test]
+    async fn a_lent_job_runs_only_on_an_idle_worker() {
+        let pool = Pool::new(2, 4).unwrap();
+        // Both workers have reached their wait.
+        while pool.shared.lock().idle < 2 {
+            std::thread::sleep(Duration::from_millis(1));
+        }
+        let (_busy, release) = block_a_worker(&pool, anytime());
+        let (tx, rx) = mpsc::channel();
+        let lent = pool.lend(anytime(), Box::new(move || tx.send(7).unwrap()));
+        assert!(lent.is_ok());
+        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), Ok(7));
+        // The other worker is busy now too: handed back.
+        let (_busy2, release2) = block_a_worker(&pool, anytime());
+        let (tx, rx) = mpsc::channel::<u32>();
+        let back = pool.lend(anytime(), Box::new(move || tx.send(8).unwrap()));
+        assert!(back.is_err());
+        assert_eq!(pool.counts(), (2, 0));
+        // Handed back, it is the caller's to run.
+        (back.err().unwrap())();
+        assert_eq!(rx.recv().unwrap(), 8);
+        drop((release, release2));
     }
 
     /// Timing of a job due `budget` from now, of no use unless started by

@@ -428,5 +428,6 @@ def _answer_of(result: SolveResult) -> Dict[str, Any]:
         ],
         "constraint_violation": result.constraint_violation,
         "warnings": [warning.to_dict() for warning in result.warnings],
+        "starts": [start.to_dict() for start in result.starts],
         **({} if result.constraint_report is None else {"constraint_report": result.constraint_report.to_dict()}),
     }

@@ -28,7 +28,16 @@ from types import ModuleType
 from typing import Any, Iterator, List, Optional, Tuple
 
 import pytest
-from conftest import REPO_ROOT, BackgroundSolve, ServiceProcess, busy_problem, free_port, running_service
+from conftest import (
+    REPO_ROOT,
+    SEED_COST,
+    SEED_SINGLE_COST,
+    BackgroundSolve,
+    ServiceProcess,
+    busy_problem,
+    free_port,
+    running_service,
+)
 import requests
 from ilqr_client import Client
 
@@ -146,10 +155,40 @@ def test_a_stream_gives_each_iteration_then_the_result(
     result = last.result
     assert result.status == pb2.SOLVE_STATUS_CONVERGED
     assert (result.state_dim, result.control_dim) == (3, 2)
-    assert len(rows) == result.iterations > 0
-    assert [e.iteration.iteration for e in rows] == list(range(1, result.iterations + 1))
-    # The rows are the result's own trace.
-    assert [e.iteration for e in rows] == list(result.trace)
+    # The unicycle's default searches: each row is tagged with its start,
+    # and each start's rows are numbered from 1.
+    assert len(result.starts) == 3
+    assert len(rows) == sum(s.iterations for s in result.starts)
+    for i, start in enumerate(result.starts):
+        mine = [e.iteration for e in rows if e.iteration.start == i]
+        assert [r.iteration for r in mine] == list(range(1, start.iterations + 1))
+        if start.chosen:
+            assert start.iterations == result.iterations > 0
+            # The chosen start's rows, untagged, are the result's own trace.
+            for r in mine:
+                r.ClearField("start")
+            assert mine == list(result.trace)
+    assert sum(s.chosen for s in result.starts) == 1
+    chosen = next(s for s in result.starts if s.chosen)
+    assert chosen.cost == result.cost
+
+
+def test_multi_start_and_max_starts_travel_in_solver_options(
+    stubs: Tuple[ModuleType, ModuleType], grpc_service: GrpcService
+) -> None:
+    pb2, _ = stubs
+    channel, stub = _stub(stubs, grpc_service.target)
+    with channel:
+        single = stub.Solve(pb2.SolveRequest(problem=pb2.Problem(solver=pb2.SolverOptions(multi_start=False))), timeout=30)
+        searched = stub.Solve(pb2.SolveRequest(problem=pb2.Problem()), timeout=30)
+        capped = stub.Solve(pb2.SolveRequest(problem=pb2.Problem(solver=pb2.SolverOptions(max_starts=2))), timeout=30)
+    assert abs(single.result.cost - SEED_SINGLE_COST) < 1e-3 and len(single.result.starts) == 1
+    assert abs(searched.result.cost - SEED_COST) < 1e-3
+    labels = [(s.label, s.HasField("obstacle"), s.side) for s in searched.result.starts]
+    assert labels == [("rest controls", False, ""), ("west of obstacle 0", True, "left"),
+                      ("east of obstacle 0", True, "right")]
+    assert [s.chosen for s in searched.result.starts] == [False, False, True]
+    assert len(capped.result.starts) == 2
 
 
 def test_invalid_input_names_each_field(stubs: Tuple[ModuleType, ModuleType], grpc_service: GrpcService) -> None:

@@ -308,6 +308,56 @@ impl<const NX: usize> TerminalCost<NX> for TerminalTracking<NX> {
     }
 }
 
+/// `weight · ‖p_k − point‖²` at the one stage `k = knot`, 0 elsewhere:
+/// pulls the position through a via-point at a given time. Not part of any
+/// problem's cost: a search over routes ([`crate::search`]) adds it to a
+/// short guiding solve that bends the initial guess to one side of an
+/// obstacle.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ViaPoint {
+    /// The point, m.
+    pub point: Vector2<f64>,
+    /// The stage at which the position is pulled to it (`1 ≤ knot < N`).
+    pub knot: usize,
+    /// Weight (cost units per m²).
+    pub weight: f64,
+    /// Indices of the position components in the state.
+    pub position: (usize, usize),
+}
+
+impl ViaPoint {
+    fn offset<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
+        Vector2::new(
+            x[self.position.0] - self.point.x,
+            x[self.position.1] - self.point.y,
+        )
+    }
+}
+
+impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPoint {
+    fn value(&self, k: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
+        if k == self.knot {
+            self.weight * self.offset(x).norm_squared()
+        } else {
+            0.0
+        }
+    }
+
+    fn expand(
+        &self,
+        k: usize,
+        x: &SVector<f64, NX>,
+        _u: &SVector<f64, NU>,
+        e: &mut StageExpansion<NX, NU>,
+    ) {
+        if k == self.knot {
+            let grad = self.offset(x) * (2.0 * self.weight);
+            let hess = Matrix2::identity() * (2.0 * self.weight);
+            add_in_plane(self.position, &grad, &hess, e);
+        }
+    }
+}
+
 /// A soft obstacle `q · exp(−‖p − c‖)` (eqs. 13–14), where `p` is the position
 /// read from state components `position = (ix, iy)`.
 ///

@@ -46,7 +46,9 @@ pub struct Parameter {
 /// parameter vector inside them gives finite dynamics, so a caller that
 /// checks them (as `ilqr-service` does) may build the model with
 /// [`Model::from_parameters`] without further checks.
-pub trait Model<const NX: usize, const NU: usize>: ContinuousDynamics<NX, NU> + Sized {
+pub trait Model<const NX: usize, const NU: usize>:
+    ContinuousDynamics<NX, NU> + Clone + Sized
+{
     /// Name on the wire, `snake_case` (`quadrotor_2d`).
     const NAME: &'static str;
     /// One paragraph: what the model is, its frame and its equations.

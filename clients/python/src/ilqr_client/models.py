@@ -694,6 +694,14 @@ class SolverOptions(_FieldsOnly):
             constraints a solve may end with (in the constrained
             quantities' units); a solve that cannot get under it is
             ``infeasible``. Service default 1e-6.
+        multi_start: Search over the ways around the obstacles: solve
+            from the plain start and from detours on either side of each
+            obstacle in the way, and return the cheapest converged answer
+            (every start is listed in :attr:`SolveResult.starts`). Service
+            default: ``True``, unless initial or warm-start controls are
+            given. ``False``: the single local solve, as the paper does it.
+        max_starts: The most starts of a search, the plain one included,
+            1..32. Service default 7.
         extra: Members this client does not know; sent as they are.
     """
 
@@ -702,6 +710,8 @@ class SolverOptions(_FieldsOnly):
     time_limit_ms: Optional[int] = None
     method: Optional[str] = None
     constraint_tolerance: Optional[float] = None
+    multi_start: Optional[bool] = None
+    max_starts: Optional[int] = None
     extra: Dict[str, Any] = field(default_factory=dict)
 
     def to_dict(self) -> Dict[str, Any]:
@@ -868,6 +878,8 @@ class TraceEntry:
             throughout, not counted); else ``None``.
         penalty: With hard constraints, the augmented Lagrangian's penalty
             ρ; else ``None``.
+        start: In a progress stream of a search, the start (index in
+            :attr:`SolveResult.starts`) the row belongs to; else ``None``.
     """
 
     iteration: int
@@ -882,6 +894,7 @@ class TraceEntry:
     outer_iteration: Optional[int] = None
     constraint_violation: Optional[float] = None
     penalty: Optional[float] = None
+    start: Optional[int] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/trace/-") -> "TraceEntry":
@@ -900,8 +913,8 @@ class TraceEntry:
         return cls(**values)
 
 
-_INT_TRACE_MEMBERS = frozenset({"iteration", "outer_iteration"})
-_OPTIONAL_TRACE_MEMBERS = frozenset({"convex_model", "outer_iteration", "constraint_violation", "penalty"})
+_INT_TRACE_MEMBERS = frozenset({"iteration", "outer_iteration", "start"})
+_OPTIONAL_TRACE_MEMBERS = frozenset({"convex_model", "outer_iteration", "constraint_violation", "penalty", "start"})
 
 
 @dataclass(frozen=True)
@@ -1186,6 +1199,70 @@ Warning = SolveWarning
 
 
 @dataclass(frozen=True)
+class StartReport:
+    """One start of a solve (an entry of :attr:`SolveResult.starts`).
+
+    Attributes:
+        label: Which way it went: ``"rest controls"`` (the model's rest:
+            hover for the quadrotor), ``"initial_controls"`` or
+            ``"warm_start"`` for the plain start; for a detour, the compass
+            side of the obstacle it passes, e.g. ``"east of obstacle 0"``.
+        status: How its solve ended, one of :data:`SOLVE_STATUSES`.
+        cost: Its final cost.
+        iterations: Its solve's iterations.
+        constraint_violation: Its largest hard-constraint violation.
+        solve_time_ms: Its time (a detour's guiding solve included), ms.
+        chosen: Whether the result is this start's.
+        obstacle: A detour's obstacle (index in the problem's obstacles);
+            ``None`` for the plain start.
+        side: A detour's side of the straight path, facing the goal:
+            ``"left"`` or ``"right"``; ``None`` for the plain start.
+        guide_iterations: A detour's guiding solve's iterations (the cost
+            plus a via-point beside the obstacle); ``None`` for the plain
+            start.
+    """
+
+    label: str
+    status: str
+    cost: float
+    iterations: int
+    constraint_violation: float
+    solve_time_ms: float
+    chosen: bool
+    obstacle: Optional[int] = None
+    side: Optional[str] = None
+    guide_iterations: Optional[int] = None
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any], where: str = "/starts/-") -> "StartReport":
+        """Parse one entry of ``starts``; unknown members are ignored."""
+        data = _object(data, where)
+
+        def optional(name: str, parse: Any) -> Any:
+            raw = data.get(name)
+            return None if raw is None else parse(raw, f"{where}/{name}")
+
+        return cls(
+            label=_string(_require(data, "label", where), f"{where}/label"),
+            status=_string(_require(data, "status", where), f"{where}/status"),
+            cost=_float(_require(data, "cost", where), f"{where}/cost"),
+            iterations=_int(_require(data, "iterations", where), f"{where}/iterations"),
+            constraint_violation=_float(
+                _require(data, "constraint_violation", where), f"{where}/constraint_violation"
+            ),
+            solve_time_ms=_float(_require(data, "solve_time_ms", where), f"{where}/solve_time_ms"),
+            chosen=_bool(_require(data, "chosen", where), f"{where}/chosen"),
+            obstacle=optional("obstacle", _int),
+            side=optional("side", _string),
+            guide_iterations=optional("guide_iterations", _int),
+        )
+
+    def to_dict(self) -> Dict[str, Any]:
+        """The JSON object the service sends for it (``None`` members left out)."""
+        return {f.name: getattr(self, f.name) for f in fields(self) if getattr(self, f.name) is not None}
+
+
+@dataclass(frozen=True)
 class SolveResult:
     """The answer to ``POST /solve``.
 
@@ -1255,6 +1332,11 @@ class SolveResult:
         warnings: What the ``status`` does not say (goal not reached, path
             through an obstacle, negative thrust), as
             :class:`SolveWarning` entries; empty when there is nothing to say.
+        starts: The starts solved from (:class:`StartReport`), the plain
+            one first; the result, its trace and gains are the one marked
+            ``chosen``. One entry for a single solve; empty from a service
+            too old to report them. ``solve_time_ms`` is the wall time of
+            them all; the sum of theirs is the CPU time.
     """
 
     status: str
@@ -1281,6 +1363,7 @@ class SolveResult:
     constraint_violation: Optional[float] = None
     constraint_report: Optional[ConstraintReport] = None
     warnings: List[SolveWarning] = field(default_factory=list)
+    starts: List[StartReport] = field(default_factory=list)
 
     @classmethod
     def from_dict(
@@ -1322,6 +1405,7 @@ class SolveResult:
         violation = data.get("constraint_violation")
         report = data.get("constraint_report")
         warnings = data.get("warnings")
+        starts = data.get("starts")
         nx = len(states[0]) if states else None
         nu = len(controls[0]) if controls else None
         return cls(
@@ -1356,6 +1440,9 @@ class SolveResult:
             warnings=[] if warnings is None else [
                 SolveWarning.from_dict(item, f"/warnings/{i}") for i, item in enumerate(_list(warnings, "/warnings"))
             ],
+            starts=[] if starts is None else [
+                StartReport.from_dict(item, f"/starts/{i}") for i, item in enumerate(_list(starts, "/starts"))
+            ],
         )
 
     def __repr__(self) -> str:
@@ -1376,7 +1463,8 @@ class SolveResult:
             f"goal_distance={self.goal_distance!r}, closest_approach={nearest}, "
             f"solve_time_ms={self.solve_time_ms!r}, queue_time_ms={self.queue_time_ms!r}, "
             f"gains={gains}, trace={trace}, constraint_violation={self.constraint_violation!r}, "
-            f"warnings={[w.code for w in self.warnings]!r}, request_id={self.request_id!r})"
+            f"warnings={[w.code for w in self.warnings]!r}, starts={len(self.starts)}, "
+            f"request_id={self.request_id!r})"
         )
 
     @property
