@@ -318,7 +318,7 @@ pub struct StartReport {
     /// Its solve's iterations.
     pub iterations: usize,
     /// A detour's guiding solve's iterations (the cost plus a via-point
-    /// beside the obstacle, from the plain start; at most 15), not counted
+    /// beside the obstacle, from the plain start; at most 6), not counted
     /// in `iterations`.
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false, minimum = 0)]
@@ -562,7 +562,7 @@ struct Attempt {
 
 /// The iterations a guiding solve may take: it only has to bend the guess
 /// to one side; the real solve does the rest.
-const GUIDE_ITERATIONS: usize = 15;
+const GUIDE_ITERATIONS: usize = 6;
 /// The guiding solve's relative tolerance, loose for the same reason.
 const GUIDE_TOLERANCE: f64 = 1e-3;
 /// A start replaces an earlier one only when cheaper by more than this
@@ -1783,6 +1783,53 @@ mod tests {
                 .iter()
                 .any(|k| (k[(0, 2)] - k[(1, 2)]).abs() > 1e-3)
         );
+    }
+
+    /// The cheapest converged start wins; a cheaper one that did not
+    /// converge does not; a near-tie goes to the earlier start; without a
+    /// converged one, the cheapest that meets the constraints, then the
+    /// least violating.
+    #[test]
+    fn the_chosen_start_is_the_cheapest_converged_earliest_on_ties() {
+        let base = solve(&ProblemSpec::default(), None, &AtomicBool::new(false)).unwrap();
+        let at = |status: SolveStatus, cost: f64, violation: f64| Attempt {
+            result: SolveResult {
+                status,
+                cost,
+                constraint_violation: violation,
+                ..base.clone()
+            },
+            guide_iterations: None,
+        };
+        use SolveStatus::{Converged, Infeasible, MaxIterations};
+        let pick = |a: &[Attempt]| choose(a, 1e-6);
+        assert_eq!(
+            pick(&[at(Converged, 10.0, 0.0), at(Converged, 9.0, 0.0)]),
+            1
+        );
+        assert_eq!(
+            pick(&[at(Converged, 10.0, 0.0), at(MaxIterations, 1.0, 0.0)]),
+            0
+        );
+        let tie = 10.0 * (1.0 - 0.5 * NEAR_TIE);
+        assert_eq!(
+            pick(&[at(Converged, 10.0, 0.0), at(Converged, tie, 0.0)]),
+            0
+        );
+        let cheaper = 10.0 * (1.0 - 2.0 * NEAR_TIE);
+        assert_eq!(
+            pick(&[at(Converged, 10.0, 0.0), at(Converged, cheaper, 0.0)]),
+            1
+        );
+        assert_eq!(
+            pick(&[at(Infeasible, 1.0, 0.1), at(MaxIterations, 50.0, 0.0)]),
+            1
+        );
+        assert_eq!(
+            pick(&[at(Infeasible, 1.0, 0.1), at(Infeasible, 50.0, 0.01)]),
+            1
+        );
+        assert_eq!(pick(&[at(Converged, 10.0, 0.0)]), 0);
     }
 
     /// Squares overflow past 1.3e154 m: where every point is that far, the

@@ -16,6 +16,7 @@ mod constraints;
 mod grpc;
 mod http;
 mod models;
+mod search;
 mod solve;
 mod stream;
 mod validation;

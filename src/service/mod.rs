@@ -874,6 +874,33 @@ mod tests {
         assert_eq!(e, SolveError::ShuttingDown);
     }
 
+    /// A search spreads over idle workers, and dropping it cancels every
+    /// start: both workers are free again long before the budget.
+    #[tokio::test]
+    async fn dropping_a_search_cancels_every_start() {
+        let service = service(2, 0);
+        let mut spec = slow(20_000);
+        // The seed's obstacle in the way: three starts.
+        spec.obstacles[99] = crate::problem::Obstacle::point([4.5, 4.5], 1000.0);
+        let pending = service
+            .submit(SolveRequest::new(spec, Transport::Http), status)
+            .unwrap();
+        let t = Instant::now();
+        while service.counts() != (2, 0) {
+            assert!(
+                t.elapsed() < Duration::from_secs(2),
+                "no helper took a start"
+            );
+            tokio::time::sleep(Duration::from_millis(5)).await;
+        }
+        drop(pending);
+        let t = Instant::now();
+        while service.counts() != (0, 0) {
+            assert!(t.elapsed() < Duration::from_secs(2), "still running");
+            tokio::time::sleep(Duration::from_millis(10)).await;
+        }
+    }
+
     /// Dropping a pending solve cancels it: the only worker is free again
     /// long before the solve's budget.
     #[tokio::test]

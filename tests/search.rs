@@ -1,0 +1,239 @@
+//! The search over routes through the service: the seed's best route
+//! against IPOPT's optimum on it, the paper's single solve on request,
+//! what given controls and `max_starts` change, the same answer on one
+//! worker, two, and the CLI, one budget for every start, and the 422s.
+
+use ilqr_service::server::Config;
+use reqwest::StatusCode;
+use serde_json::{Value, json};
+
+use crate::common::{Server, slow};
+
+async fn solve(s: &Server, body: &Value) -> Value {
+    let res = s.post_to("/solve", body).await;
+    assert_eq!(res.status(), StatusCode::OK);
+    res.json().await.unwrap()
+}
+
+fn relative(a: f64, b: f64) -> f64 {
+    (a - b).abs() / b.abs()
+}
+
+/// IPOPT's optimum of the seed's east route (`bench/casadi_ipopt.py` from
+/// this project's east answer; from hover IPOPT, like iLQR, goes west).
+const IPOPT_EAST: f64 = 5418.303870368021;
+/// IPOPT's optimum of the seed from hover, the paper's route (west).
+const IPOPT_WEST: f64 = 5520.212264;
+
+/// The result without what differs from run to run: times.
+fn timeless(mut r: Value) -> Value {
+    r["solve_time_ms"] = json!(0);
+    r["queue_time_ms"] = json!(0);
+    for row in r["trace"].as_array_mut().into_iter().flatten() {
+        row["elapsed_ms"] = json!(0);
+    }
+    for start in r["starts"].as_array_mut().unwrap() {
+        start["solve_time_ms"] = json!(0);
+    }
+    r
+}
+
+#[tokio::test]
+async fn the_seed_takes_the_cheapest_route_and_lists_its_starts() {
+    let s = Server::default().await;
+    let r = solve(&s, &json!({})).await;
+    assert_eq!(r["status"], "converged");
+    let cost = r["cost"].as_f64().unwrap();
+    assert!(relative(cost, IPOPT_EAST) < 1e-8, "{cost}");
+    let starts = r["starts"].as_array().unwrap();
+    let labels: Vec<&str> = starts
+        .iter()
+        .map(|s| s["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(
+        labels,
+        ["rest controls", "west of obstacle 0", "east of obstacle 0"]
+    );
+    assert_eq!(
+        starts
+            .iter()
+            .map(|s| s["chosen"] == true)
+            .collect::<Vec<_>>(),
+        [false, false, true]
+    );
+    let east = &starts[2];
+    assert_eq!(
+        (&east["obstacle"], &east["side"]),
+        (&json!(0), &json!("right"))
+    );
+    assert_eq!(east["cost"], r["cost"]);
+    assert_eq!(east["iterations"], r["iterations"]);
+    assert_eq!(r["trace"].as_array().unwrap().len() as u64, r["iterations"]);
+    // The plain start is the paper's solve, and the west detour finds it
+    // too; both lose to the east.
+    for i in [0, 1] {
+        let c = starts[i]["cost"].as_f64().unwrap();
+        assert!(relative(c, IPOPT_WEST) < 1e-8, "start {i}: {c}");
+        assert_eq!(starts[i]["status"], "converged");
+    }
+    assert!(starts[0].get("guide_iterations").is_none());
+    let guided = east["guide_iterations"].as_u64().unwrap();
+    assert!((1..=6).contains(&guided), "{guided}");
+    // East: the path passes the obstacle at (4.5, 4.5) with x > 4.5.
+    let nearest = r["states"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|x| (x[0].as_f64().unwrap(), x[1].as_f64().unwrap()))
+        .min_by(|a, b| {
+            let d = |p: &(f64, f64)| (p.0 - 4.5).hypot(p.1 - 4.5);
+            d(a).total_cmp(&d(b))
+        })
+        .unwrap();
+    assert!(nearest.0 > 4.5, "{nearest:?}");
+}
+
+#[tokio::test]
+async fn multi_start_false_and_given_controls_solve_once() {
+    let s = Server::default().await;
+    let single = solve(&s, &json!({"solver": {"multi_start": false}})).await;
+    assert!(relative(single["cost"].as_f64().unwrap(), IPOPT_WEST) < 1e-8);
+    assert_eq!(single["starts"].as_array().unwrap().len(), 1);
+    assert_eq!(single["starts"][0]["label"], "rest controls");
+    assert_eq!(single["starts"][0]["chosen"], true);
+    let hover = vec![[4.905, 4.905]; 100];
+    let given = solve(&s, &json!({"initial_controls": hover})).await;
+    assert_eq!(given["starts"].as_array().unwrap().len(), 1);
+    assert_eq!(given["starts"][0]["label"], "initial_controls");
+    let asked = solve(
+        &s,
+        &json!({"initial_controls": hover, "solver": {"multi_start": true}}),
+    )
+    .await;
+    assert_eq!(asked["starts"].as_array().unwrap().len(), 3);
+    assert!(relative(asked["cost"].as_f64().unwrap(), IPOPT_EAST) < 1e-8);
+    // No obstacle, nothing to go around: one start.
+    let open = solve(&s, &json!({"obstacles": []})).await;
+    assert_eq!(open["starts"].as_array().unwrap().len(), 1);
+    // One start is the single solve; two leave the east detour out.
+    let one = solve(&s, &json!({"solver": {"max_starts": 1}})).await;
+    assert_eq!(timeless(one), timeless(single));
+    let two = solve(&s, &json!({"solver": {"max_starts": 2}})).await;
+    assert_eq!(two["starts"].as_array().unwrap().len(), 2);
+    assert!(relative(two["cost"].as_f64().unwrap(), IPOPT_WEST) < 1e-8);
+}
+
+/// Every start is deterministic: the answer is the same whether its
+/// starts ran side by side (two workers), one after another (one worker),
+/// or in the CLI.
+#[tokio::test]
+async fn the_answer_is_the_same_on_one_worker_two_and_the_cli() {
+    let doc = json!({"model": {"type": "unicycle"}, "obstacles": [
+        {"center": [1.3, 0.1], "weight": 10}, {"center": [2.7, -0.1], "weight": 10}]});
+    let mut answers = Vec::new();
+    for workers in [1, 2] {
+        let config = Config {
+            workers: std::num::NonZeroUsize::new(workers),
+            ..Config::default()
+        };
+        let s = Server::start(config).await;
+        for _ in 0..3 {
+            answers.push(timeless(solve(&s, &doc).await));
+        }
+    }
+    let dir = std::env::temp_dir().join(format!("ilqr-search-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let (problem, out) = (dir.join("p.json"), dir.join("r.json"));
+    std::fs::write(&problem, doc.to_string()).unwrap();
+    let status = std::process::Command::new(env!("CARGO_BIN_EXE_ilqr-service"))
+        .args([
+            "solve",
+            problem.to_str().unwrap(),
+            "-o",
+            out.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(status.status.success(), "{status:?}");
+    let cli: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    answers.push(timeless(cli));
+    assert_eq!(answers[0]["starts"].as_array().unwrap().len(), 5);
+    for (i, a) in answers.iter().enumerate() {
+        assert_eq!(a, &answers[0], "answer {i}");
+    }
+}
+
+/// One budget covers every start: a search of slow starts answers at its
+/// time limit, each start stopped by it.
+#[tokio::test]
+async fn every_start_shares_the_budget() {
+    let s = Server::default().await;
+    let mut doc = slow(600);
+    // The seed's obstacle in the way, in place of a distant one (100 at most).
+    doc["obstacles"][99] = json!({"center": [4.5, 4.5], "weight": 1000});
+    let t = std::time::Instant::now();
+    let r = solve(&s, &doc).await;
+    let elapsed = t.elapsed();
+    assert_eq!(r["status"], "time_limit");
+    let starts = r["starts"].as_array().unwrap();
+    assert_eq!(starts.len(), 3);
+    for start in starts {
+        assert_eq!(start["status"], "time_limit", "{start}");
+    }
+    assert!(
+        r["solve_time_ms"].as_f64().unwrap() < 1200.0,
+        "{}",
+        r["solve_time_ms"]
+    );
+    assert!(elapsed.as_millis() < 3000, "{elapsed:?}");
+}
+
+#[tokio::test]
+async fn bad_search_options_are_422_at_their_pointer() {
+    let s = Server::default().await;
+    for (solver, pointer, expected) in [
+        (
+            json!({"max_starts": 0}),
+            "/solver/max_starts",
+            "from 1 to 32",
+        ),
+        (
+            json!({"max_starts": 33}),
+            "/solver/max_starts",
+            "from 1 to 32",
+        ),
+        (
+            json!({"max_starts": -1}),
+            "/solver/max_starts",
+            "from 1 to 32",
+        ),
+        (
+            json!({"max_starts": 1.5}),
+            "/solver/max_starts",
+            "from 1 to 32",
+        ),
+        (
+            json!({"max_starts": null}),
+            "/solver/max_starts",
+            "from 1 to 32",
+        ),
+        (
+            json!({"multi_start": null}),
+            "/solver/multi_start",
+            "a boolean",
+        ),
+        (
+            json!({"multi_start": 1}),
+            "/solver/multi_start",
+            "a boolean",
+        ),
+    ] {
+        let res = s.post_to("/solve", &json!({"solver": solver})).await;
+        assert_eq!(res.status(), StatusCode::UNPROCESSABLE_ENTITY, "{solver}");
+        let body: Value = res.json().await.unwrap();
+        assert_eq!(body["errors"][0]["pointer"], pointer, "{solver}: {body}");
+        let detail = body["errors"][0]["detail"].as_str().unwrap();
+        assert!(detail.contains(expected), "{solver}: {detail}");
+    }
+}
