@@ -26,6 +26,7 @@ import tempfile
 from pathlib import Path
 
 import matplotlib
+import matplotlib.patches
 
 matplotlib.use("Agg")  # no display needed; save_figure draws on a bare Figure anyway
 
@@ -69,9 +70,51 @@ def solve(binary: Path, problem_path: Path, workdir: Path) -> SolveResult:
     return SolveResult.from_dict(json.loads(result_path.read_text()))
 
 
+def routes_figure(binary: Path, workdir: Path) -> None:
+    """docs/routes.png: the seed's two routes, the paper's single solve from
+    hover (``multi_start: false``, west) and the search's answer (east),
+    with the straight path the detours are placed about."""
+    from matplotlib.figure import Figure
+
+    seed = json.loads((EXAMPLES / "seed.json").read_text())
+    results = {}
+    for name, multi in (("single", False), ("search", True)):
+        path = workdir / f"routes-{name}.json"
+        path.write_text(json.dumps(dict(seed, solver=dict(seed.get("solver", {}), multi_start=multi))))
+        results[name] = solve(binary, path, workdir)
+    problem = Problem.from_dict(seed)
+    fig = Figure(figsize=(5.2, 5.6))
+    ax = fig.add_subplot()
+    start, goal = results["search"].states[0], problem.goal_state or [4.0, 9.0]
+    ax.plot([start[0], goal[0]], [start[1], goal[1]], ":", color="0.6", label="straight path")
+    for o in problem.obstacles or []:
+        for r, alpha in ((1.0, 0.25), (2.0, 0.15), (3.0, 0.08)):
+            ax.add_patch(matplotlib.patches.Circle(o.center, r, color="tab:red", alpha=alpha, lw=0))
+        ax.plot(*o.center, "x", color="tab:red")
+    chosen = next(s for s in results["search"].starts if s.chosen)
+    for name, color, text in (
+        ("single", "tab:gray", f"single solve from hover (paper): {results['single'].cost:.3f}"),
+        ("search", "tab:blue", f"search, {chosen.label}: {results['search'].cost:.3f}"),
+    ):
+        xs = [x[0] for x in results[name].states]
+        ys = [x[1] for x in results[name].states]
+        ax.plot(xs, ys, "-", color=color, lw=2, label=text)
+    ax.plot(*start[:2], "o", color="k")
+    ax.plot(goal[0], goal[1], "*", color="k", ms=12)
+    ax.set_aspect("equal")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("y (m)")
+    ax.set_title("The seed's two routes around the obstacle")
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.1), fontsize=8)
+    out = DOCS / "routes.png"
+    fig.savefig(out, dpi=DPI, bbox_inches="tight")
+    print(f"wrote {out.relative_to(REPO)} ({out.stat().st_size / 1000:.0f} kB)")
+
+
 def main() -> int:
     binary = service_binary()
     with tempfile.TemporaryDirectory(prefix="ilqr-figures-") as tmp:
+        routes_figure(binary, Path(tmp))
         for figure_name, problem_name in FIGURES:
             problem_path = EXAMPLES / problem_name
             print(f"--- {problem_path.relative_to(REPO)}")

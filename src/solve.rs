@@ -117,8 +117,8 @@ pub struct SolveResult {
     /// state's and controls' units, plus the obstacle terms, so it has no
     /// single unit: compare costs of one problem, not across weights.
     pub cost: f64,
-    /// Cost of the initial guess (the initial controls rolled out), same
-    /// terms as `cost`.
+    /// Cost of the chosen start's initial guess (its controls rolled out;
+    /// for a detour, the guiding solve's), same terms as `cost`.
     pub initial_cost: f64,
     /// Iterations performed.
     pub iterations: usize,
