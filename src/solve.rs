@@ -319,7 +319,9 @@ pub struct StartReport {
     pub iterations: usize,
     /// A detour's guiding solve's iterations (the cost plus a via-point
     /// beside the obstacle, from the plain start; at most 6), not counted
-    /// in `iterations`.
+    /// in `iterations`. Absent for the plain start, and for a detour whose
+    /// guide could not run (its initial rollout not finite: the plain start
+    /// then fails alike).
     #[serde(skip_serializing_if = "Option::is_none", default)]
     #[schema(nullable = false, minimum = 0)]
     pub guide_iterations: Option<usize>,
@@ -450,8 +452,9 @@ pub struct TraceEntry {
 #[derive(Debug, Clone, PartialEq)]
 pub struct Unsolvable(pub FieldError);
 
-/// A job of a search that another thread may run.
-pub type Helper = Box<dyn FnOnce() + Send + 'static>;
+/// A job of a search that another thread may run, called with a check
+/// that says whether it should give way (a request waits for its worker).
+pub type Helper = Box<dyn FnOnce(&dyn Fn() -> bool) + Send + 'static>;
 
 /// Where a search may run its starts besides the calling thread (see
 /// [`solve_shared`]).
@@ -664,8 +667,10 @@ fn search(
     if let Some((lend, run)) = lent {
         for _ in 1..n {
             let (next, tx, run) = (Arc::clone(&next), tx.clone(), Arc::clone(&run));
-            let job: Helper = Box::new(move || {
-                loop {
+            let job: Helper = Box::new(move |give_way| {
+                // Between starts: a request waiting for this worker gets it,
+                // and this search's owner runs the rest.
+                while !give_way() {
                     let i = next.fetch_add(1, Ordering::SeqCst);
                     if i >= n {
                         break;
@@ -761,7 +766,8 @@ fn choose(attempts: &[Attempt], constraint_tolerance: f64) -> usize {
 /// all.
 fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec) -> Vec<Start> {
     let mut out = vec![Start::Plain];
-    if !spec.searches() || spec.obstacles.is_empty() {
+    // `max_iterations: 0` asks for the plain guess rolled out, no more.
+    if !spec.searches() || spec.obstacles.is_empty() || spec.solver.max_iterations == 0 {
         return out;
     }
     let (px, py) = M::POSITION;
@@ -776,12 +782,18 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
     // hard obstacle with no clearance still gets its via-points off its
     // boundary.
     let spare = 0.05 * (to - from).norm();
+    // An obstacle with neither weight nor clearance shapes nothing: its
+    // margin is NaN, so it gets no detours, and keeps its index.
     let obstacles: Vec<search::Obstacle> = spec
         .obstacles
         .iter()
         .map(|o| search::Obstacle {
             region: region(o),
-            margin: o.clearance.unwrap_or(0.0) + soft_reach(o.weight) + spare,
+            margin: if o.weight > 0.0 || o.clearance.is_some() {
+                o.clearance.unwrap_or(0.0) + soft_reach(o.weight) + spare
+            } else {
+                f64::NAN
+            },
         })
         .collect();
     let detours = search::detours(from, to, spec.horizon, &obstacles);

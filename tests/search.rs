@@ -112,9 +112,17 @@ async fn multi_start_false_and_given_controls_solve_once() {
     .await;
     assert_eq!(asked["starts"].as_array().unwrap().len(), 3);
     assert!(relative(asked["cost"].as_f64().unwrap(), IPOPT_EAST) < 1e-8);
-    // No obstacle, nothing to go around: one start.
-    let open = solve(&s, &json!({"obstacles": []})).await;
-    assert_eq!(open["starts"].as_array().unwrap().len(), 1);
+    // No obstacle, nothing to go around: one start. Nor around one that
+    // shapes nothing (no weight, no clearance); and `max_iterations: 0`
+    // asks for the plain guess rolled out.
+    for doc in [
+        json!({"obstacles": []}),
+        json!({"obstacles": [{"center": [4.5, 4.5], "weight": 0}]}),
+        json!({"solver": {"max_iterations": 0}}),
+    ] {
+        let r = solve(&s, &doc).await;
+        assert_eq!(r["starts"].as_array().unwrap().len(), 1, "{doc}");
+    }
     // One start is the single solve; two leave the east detour out.
     let one = solve(&s, &json!({"solver": {"max_starts": 1}})).await;
     assert_eq!(timeless(one), timeless(single));

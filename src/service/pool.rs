@@ -37,6 +37,10 @@ use tokio::sync::oneshot;
 /// A queued job, called with the index of the worker that runs it.
 type Job = Box<dyn FnOnce(usize) + Send + 'static>;
 
+/// A job lent to an idle worker ([`Pool::lend`]), called with a check that
+/// says whether an admitted job is waiting for a worker.
+pub type Lent = Box<dyn FnOnce(&dyn Fn() -> bool) + Send + 'static>;
+
 /// Why [`Pool::submit`] refused a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum Refusal {
@@ -99,6 +103,8 @@ struct Queued {
     id: u64,
     timing: Timing,
     job: Job,
+    /// Lent to an admitted request ([`Pool::lend`]), not admitted itself.
+    lent: bool,
 }
 
 struct State {
@@ -106,6 +112,9 @@ struct State {
     /// What each worker runs: when it started and its timing; `None` when
     /// idle. Indexed by worker.
     running: Vec<Option<(Instant, Timing)>>,
+    /// Whether each worker's job is a lent one. Lent jobs are not counted
+    /// as admitted (running or waiting); a worker running one is busy.
+    lent: Vec<bool>,
     /// Workers blocked on `wake`. `Condvar::notify_one` is a system call
     /// even with nobody waiting; under load every worker is busy and the
     /// next job is taken from the queue without one.
@@ -115,8 +124,18 @@ struct State {
 }
 
 impl State {
+    /// Admitted jobs running (lent ones are not admitted).
     fn running_count(&self) -> usize {
-        self.running.iter().filter(|r| r.is_some()).count()
+        self.running
+            .iter()
+            .zip(&self.lent)
+            .filter(|(r, lent)| r.is_some() && !**lent)
+            .count()
+    }
+
+    /// Admitted jobs waiting.
+    fn waiting_count(&self) -> usize {
+        self.queue.iter().filter(|q| !q.lent).count()
     }
 
     /// When a worker would be free for a job queued behind everything now
@@ -144,7 +163,9 @@ impl State {
             .iter()
             .map(|r| Reverse(r.map_or(now, |(start, t)| ends(start, t.deadline))))
             .collect();
-        for queued in &self.queue {
+        // A queued lent job ends at once when its search has nothing left,
+        // and gives way to a request after its current start: not counted.
+        for queued in self.queue.iter().filter(|q| !q.lent) {
             let Some(Reverse(at)) = free.pop() else {
                 return Some(now); // no workers: not reached (at least 1)
             };
@@ -189,6 +210,7 @@ impl Pool {
                 // maximum: a capacity of thousands is memory never touched.
                 queue: VecDeque::with_capacity(capacity.min(64)),
                 running: vec![None; workers],
+                lent: vec![false; workers],
                 idle: 0,
                 next_id: 0,
                 closed: false,
@@ -243,7 +265,7 @@ impl Pool {
             });
         });
         let mut st = self.shared.lock();
-        if st.closed || st.running_count() + st.queue.len() >= self.workers + self.capacity {
+        if st.closed || st.running_count() + st.waiting_count() >= self.workers + self.capacity {
             return Err(Refusal::Full);
         }
         if let (Some(estimate), Some(start_by)) = (estimate, timing.start_by) {
@@ -259,7 +281,12 @@ impl Pool {
         }
         let id = st.next_id;
         st.next_id += 1;
-        st.queue.push_back(Queued { id, timing, job });
+        st.queue.push_back(Queued {
+            id,
+            timing,
+            job,
+            lent: false,
+        });
         let someone_waits = st.idle > 0;
         drop(st);
         if someone_waits {
@@ -275,28 +302,36 @@ impl Pool {
     /// Run `f` on an idle worker now, for a job already admitted (a start
     /// of its search, [`crate::solve::Helpers`]), or hand it back when no
     /// worker is idle: every worker busy, or as many idle as jobs queued
-    /// for them. It goes ahead of the queue (only idle workers take it, so
-    /// it delays nobody) and is not counted against the capacity; a worker
-    /// running it counts as busy with `timing`, so admission sees it.
-    pub fn lend(
-        &self,
-        timing: Timing,
-        f: crate::solve::Helper,
-    ) -> Result<(), crate::solve::Helper> {
+    /// for them. It goes ahead of the queue (only an idle worker takes it)
+    /// and is not admitted itself: it takes no slot of the capacity, and
+    /// admission's estimate leaves it out. `f` gets a check that says
+    /// whether an admitted job is waiting for a worker; a lent job polls it
+    /// between its pieces of work and ends, leaving the rest to its owner,
+    /// once one is, so that it delays a later request by one piece at most.
+    /// A panic in `f` is logged; its owner notices the missing work.
+    pub fn lend(&self, timing: Timing, f: Lent) -> Result<(), Lent> {
         let mut st = self.shared.lock();
         if st.closed || st.idle <= st.queue.len() {
             return Err(f);
         }
         let shared = Arc::clone(&self.shared);
         let job: Job = Box::new(move |worker| {
-            // A panic is its caller's to notice (the start never reports);
-            // the worker lives on.
-            let _ = catch_unwind(AssertUnwindSafe(f));
-            shared.lock().running[worker] = None;
+            let waiting = || shared.lock().waiting_count() > 0;
+            if let Err(p) = catch_unwind(AssertUnwindSafe(|| f(&waiting))) {
+                tracing::error!(panic = %panic_message(&p), "a lent job panicked");
+            }
+            let mut st = shared.lock();
+            st.running[worker] = None;
+            st.lent[worker] = false;
         });
         let id = st.next_id;
         st.next_id += 1;
-        st.queue.push_front(Queued { id, timing, job });
+        st.queue.push_front(Queued {
+            id,
+            timing,
+            job,
+            lent: true,
+        });
         drop(st);
         self.shared.wake.notify_one();
         Ok(())
@@ -310,16 +345,21 @@ impl Pool {
         at.map_or(Duration::ZERO, |at| at.saturating_duration_since(now))
     }
 
-    /// Jobs waiting for a worker.
+    /// Admitted jobs waiting for a worker.
     pub fn queue_depth(&self) -> usize {
-        self.shared.lock().queue.len()
+        self.shared.lock().waiting_count()
+    }
+
+    /// Workers running a lent job.
+    pub fn lent(&self) -> usize {
+        self.shared.lock().lent.iter().filter(|l| **l).count()
     }
 
     /// `(running, waiting)`, read under one lock so that a job moving from
     /// the queue to a worker is not counted in both.
     pub fn counts(&self) -> (usize, usize) {
         let st = self.shared.lock();
-        (st.running_count(), st.queue.len())
+        (st.running_count(), st.waiting_count())
     }
 
     /// Number of worker threads.
@@ -382,6 +422,7 @@ fn worker(shared: &Shared, index: usize) {
             loop {
                 if let Some(queued) = st.queue.pop_front() {
                     st.running[index] = Some((Instant::now(), queued.timing));
+                    st.lent[index] = queued.lent;
                     break queued.job;
                 }
                 if st.closed {
@@ -503,30 +544,42 @@ mod tests {
         assert_eq!(t.done().await.unwrap().outcome, Ok(()));
     }
 
-    /// A lent job runs at once on an idle worker, ahead of the queue; with
+    /// A lent job runs at once on an idle worker, ahead of the queue, and
+    /// takes no admission slot; it is told when an admitted job waits; with
     /// no worker idle it is handed back, not queued.
     #[tokio::test]
-    async fn a_lent_job_runs_only_on_an_idle_worker() {
-        let pool = Pool::new(2, 4).unwrap();
+    async fn a_lent_job_runs_only_on_an_idle_worker_and_gives_way() {
+        let pool = Pool::new(2, 0).unwrap();
         // Both workers have reached their wait.
         while pool.shared.lock().idle < 2 {
             std::thread::sleep(Duration::from_millis(1));
         }
         let (_busy, release) = block_a_worker(&pool, anytime());
-        let (tx, rx) = mpsc::channel();
-        let lent = pool.lend(anytime(), Box::new(move || tx.send(7).unwrap()));
+        let (told_tx, told_rx) = mpsc::channel();
+        let (go_tx, go_rx) = mpsc::channel::<()>();
+        let lent = pool.lend(
+            anytime(),
+            Box::new(move |waiting| {
+                told_tx.send(waiting()).unwrap();
+                let _ = go_rx.recv();
+                told_tx.send(waiting()).unwrap();
+            }),
+        );
         assert!(lent.is_ok());
-        assert_eq!(rx.recv_timeout(Duration::from_secs(5)), Ok(7));
-        // The other worker is busy now too: handed back.
-        let (_busy2, release2) = block_a_worker(&pool, anytime());
-        let (tx, rx) = mpsc::channel::<u32>();
-        let back = pool.lend(anytime(), Box::new(move || tx.send(8).unwrap()));
+        assert_eq!(told_rx.recv_timeout(Duration::from_secs(5)), Ok(false));
+        assert_eq!(pool.lent(), 1);
+        // Both workers busy, but the lent one holds no slot: a request is
+        // admitted (queue capacity 0), and the lent job is told it waits.
+        assert_eq!(pool.counts(), (1, 0));
+        let mut queued = pool.submit(anytime(), None, |_| 5).unwrap();
+        // Nobody idle: handed back, not queued.
+        let back = pool.lend(anytime(), Box::new(|_| ()));
         assert!(back.is_err());
-        assert_eq!(pool.counts(), (2, 0));
-        // Handed back, it is the caller's to run.
-        (back.err().unwrap())();
-        assert_eq!(rx.recv().unwrap(), 8);
-        drop((release, release2));
+        go_tx.send(()).unwrap();
+        assert_eq!(told_rx.recv_timeout(Duration::from_secs(5)), Ok(true));
+        assert_eq!(queued.done().await.unwrap().outcome, Ok(5));
+        assert_eq!(pool.lent(), 0);
+        drop(release);
     }
 
     /// Timing of a job due `budget` from now, of no use unless started by

@@ -44,7 +44,8 @@ pub struct Obstacle {
     /// How far from the region's boundary (m) a path that passes it is
     /// expected to keep: its clearance, plus the reach of a soft cost. The
     /// via-point is this far out, and the obstacle is in the way when the
-    /// straight path comes closer than this.
+    /// straight path comes closer than this. One that is not finite puts
+    /// the obstacle out of the way (no detours).
     pub margin: f64,
 }
 
