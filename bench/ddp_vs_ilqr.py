@@ -47,7 +47,7 @@ def main() -> int:
             last = {}
             for _ in range(repeat):
                 for method in times:
-                    problem = dict(base, solver={"method": method}, output={"trace": False})
+                    problem = dict(base, solver={"method": method, "multi_start": False}, output={"trace": False})
                     last[method] = solve(binary, problem, out)
                     times[method].append(last[method]["solve_time_ms"])
             for method, t in times.items():

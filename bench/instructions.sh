@@ -10,7 +10,8 @@
 #   REQUESTS=50 bash bench/instructions.sh
 #   bash bench/instructions.sh RUST_LOG=warn   # env for the server (step 3)
 #
-# 1. The seed solve as `ilqr-service solve` (no file: the default problem,
+# 1. The seed's single solve as `ilqr-service solve -` (the default problem
+#    with `multi_start: false`,
 #    gains and trace included) runs it, under callgrind, counting inside
 #    `ilqr_service::solve::solve` only (`--toggle-collect`): building the
 #    problem, the solve, the result's wire types; no start-up, parsing or
@@ -83,7 +84,8 @@ control() { # -z | -d : a callgrind_control command, checked (it exits 0 even wh
 
 echo "== seed solve (ilqr_service::solve::solve: the process's first solve, gains and trace on)"
 valgrind --tool=callgrind --callgrind-out-file="$tmp/seed.out" \
-    --toggle-collect='ilqr_service::solve::solve' "$BIN" solve >"$tmp/seed.txt" 2>"$tmp/seed.err" ||
+    --toggle-collect='ilqr_service::solve::solve' "$BIN" solve - \
+    <<<'{"solver":{"multi_start":false}}' >"$tmp/seed.txt" 2>"$tmp/seed.err" ||
     fail "ilqr-service solve under valgrind failed:" "$tmp/seed.txt" "$tmp/seed.err"
 seed="$(total "$tmp/seed.out")"
 printf '  %s instructions  (%s)\n' "$seed" "$(grep -E '^(status|iterations)' "$tmp/seed.txt" | tr -s ' ' | paste -sd ',' -)"
@@ -110,7 +112,8 @@ post() { # body count
     python3 - "$PORT" "$1" "$2" <<'EOF'
 import http.client, sys
 port, body, n = int(sys.argv[1]), sys.argv[2], int(sys.argv[3])
-payload = (b'{"output":{"gains":false,"trace":false}}' if body == "lean" else b"{}")
+payload = (b'{"solver":{"multi_start":false},"output":{"gains":false,"trace":false}}' if body == "lean"
+           else b'{"solver":{"multi_start":false}}')
 c = http.client.HTTPConnection("127.0.0.1", port, timeout=300)
 for _ in range(n):
     c.request("POST", "/solve", payload, {"content-type": "application/json"})

@@ -20,7 +20,7 @@
 #       and CPU seconds;
 #    b. HTTP: `ilqr-service serve --workers 2 --queue-capacity 64` and
 #       `wrk -t2 -c8 -d${DURATION}s --latency -s bench/post_seed.lua URL --
-#       lean` (body {"output":{"gains":false,"trace":false}}): 200 answers
+#       lean` (body {"solver":{"multi_start":false},"output":{"gains":false,"trace":false}}): 200 answers
 #       per second, p50/p99, and the server's CPU time from /proc/PID/stat.
 #       The script does not count statuses here (see bench/post_seed.lua:
 #       a Lua `response` callback costs wrk 10-20 us per answer on the same

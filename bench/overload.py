@@ -53,7 +53,7 @@ QUEUE = 4
 def problem(horizon: int, budget_ms: int) -> dict:
     return {
         "horizon": horizon,
-        "solver": {"time_limit_ms": budget_ms},
+        "solver": {"time_limit_ms": budget_ms, "multi_start": False},
         "output": {"gains": False, "trace": False},
     }
 

@@ -34,7 +34,8 @@ def problem(obstacles: int, budget_ms: int) -> dict:
             {"center": [rng.uniform(-5, 10), rng.uniform(-5, 10)], "weight": 10}
             for _ in range(obstacles)
         ],
-        "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": budget_ms},
+        "solver": {"tolerance": 0, "max_iterations": 10000, "time_limit_ms": budget_ms,
+                   "multi_start": False},
         "output": {"gains": True, "trace": False},
     }
 

@@ -23,7 +23,8 @@
 //! `HTTP_PATH_COUNT` set it runs a fixed number of requests after a warm-up
 //! (see [`count`]), for `bench/instructions.sh`.
 //!
-//! Each stage runs on two bodies: `lean` = `{"output":{"gains":false,"trace":false}}`
+//! Each stage runs on two bodies (the seed's single solve, `multi_start`
+//! false in both): `lean` = `{"output":{"gains":false,"trace":false}}`
 //! (what `bench/load.sh` posts by default) and `full` = `{}` (the seed with
 //! gains and trace in the answer).
 
@@ -147,8 +148,8 @@ enum Body {
 impl Body {
     fn bytes(self) -> &'static [u8] {
         match self {
-            Self::Lean => br#"{"output":{"gains":false,"trace":false}}"#,
-            Self::Full => b"{}",
+            Self::Lean => br#"{"solver":{"multi_start":false},"output":{"gains":false,"trace":false}}"#,
+            Self::Full => br#"{"solver":{"multi_start":false}}"#,
         }
     }
 

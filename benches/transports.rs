@@ -260,14 +260,19 @@ fn main() {
         .build()
         .expect("a runtime");
     let output = if a.full {
-        serde_json::json!({})
+        serde_json::json!({"solver": {"multi_start": false}})
     } else {
-        serde_json::json!({"output": {"gains": false, "trace": false}})
+        serde_json::json!({"solver": {"multi_start": false}, "output": {"gains": false, "trace": false}})
     };
+    // The seed's single solve, the figures' subject since before the search.
     let problem = proto::Problem {
         output: (!a.full).then_some(proto::OutputOptions {
             gains: Some(false),
             trace: Some(false),
+        }),
+        solver: Some(proto::SolverOptions {
+            multi_start: Some(false),
+            ..Default::default()
         }),
         ..Default::default()
     };
