@@ -148,7 +148,9 @@ enum Body {
 impl Body {
     fn bytes(self) -> &'static [u8] {
         match self {
-            Self::Lean => br#"{"solver":{"multi_start":false},"output":{"gains":false,"trace":false}}"#,
+            Self::Lean => {
+                br#"{"solver":{"multi_start":false},"output":{"gains":false,"trace":false}}"#
+            }
             Self::Full => br#"{"solver":{"multi_start":false}}"#,
         }
     }
