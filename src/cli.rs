@@ -6,13 +6,13 @@ use std::io::{Read, Write};
 use std::path::PathBuf;
 use std::process::ExitCode;
 use std::sync::Arc;
-use std::sync::atomic::{AtomicBool, AtomicU8, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU8, AtomicUsize, Ordering};
 
 use clap::{Parser, Subcommand};
 
 use crate::problem::{Invalid, Limits, ParseError, ProblemSpec, parse};
 use crate::server::{self, Config};
-use crate::solve::{SolveResult, solve};
+use crate::solve::{Helper, Helpers, SolveResult, solve_shared};
 
 /// Trajectory optimisation with iLQR, served over HTTP and gRPC.
 ///
@@ -311,7 +311,30 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         },
     };
     let signals = Signals::watch();
-    let solved = solve(&spec, spec.time_limit(None), &signals.cancel);
+    // A search's starts also run on threads of their own, one per core
+    // beside this one.
+    let spare = AtomicUsize::new(std::thread::available_parallelism().map_or(1, |n| n.get()) - 1);
+    let lend = |job: Helper| {
+        let free = spare.fetch_update(Ordering::SeqCst, Ordering::SeqCst, |n| n.checked_sub(1));
+        if free.is_err() {
+            return Err(job);
+        }
+        match std::thread::Builder::new()
+            .name("search".into())
+            .spawn(move || job(&|| false))
+        {
+            Ok(_) => Ok(()),
+            // No thread: the job is gone with the error, and its starts
+            // run here (the search never handed it a start).
+            Err(_) => Ok(()),
+        }
+    };
+    let helpers = Helpers {
+        spec: Arc::new(spec.clone()),
+        cancel: Arc::clone(&signals.cancel),
+        lend: &lend,
+    };
+    let solved = solve_shared(helpers, spec.time_limit(None), &mut |_| {});
     signals.finishing.store(true, Ordering::SeqCst);
     let result = match solved {
         Ok(r) => r,

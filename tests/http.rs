@@ -1219,6 +1219,7 @@ async fn metrics_count_requests_solves_and_rejections() {
         "solve_queue_wait_seconds_bucket",
         "solve_duration_seconds_bucket",
         "solve_iterations_bucket",
+        "solve_starts_bucket{le=\"3\"}",
         concat!("build_info{version=\"", env!("CARGO_PKG_VERSION"), "\"} 1"),
         "http_request_duration_seconds_bucket{route=\"/solve\",le=\"0.001\"}",
         "solve_duration_seconds_bucket{transport=\"http\",le=\"0.00075\"}",

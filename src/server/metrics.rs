@@ -43,7 +43,8 @@
 //!   a budget of the same size;
 //! * `solve_queue_wait_seconds{transport}`, `solve_duration_seconds{transport}`,
 //!   histograms;
-//! * `solve_iterations`, histogram;
+//! * `solve_iterations`, histogram (the chosen start's);
+//! * `solve_starts`, histogram: starts per solve (1 without a search);
 //! * `http_request_duration_seconds{route}`, histogram: from routing to
 //!   the answer's head (the body's transfer is not in it);
 //! * `build_info{version}`, gauge, always 1;
@@ -83,6 +84,10 @@ pub fn handle() -> &'static PrometheusHandle {
             .set_buckets_for_metric(Matcher::Suffix("_seconds".into()), &seconds)
             .and_then(|b| {
                 b.set_buckets_for_metric(Matcher::Full("solve_iterations".into()), &iterations)
+            })
+            .and_then(|b| {
+                let starts = [1.0, 2.0, 3.0, 5.0, 7.0, 9.0, 13.0, 17.0, 25.0, 32.0];
+                b.set_buckets_for_metric(Matcher::Full("solve_starts".into()), &starts)
             })
             .unwrap_or_else(|_| PrometheusBuilder::new());
         let recorder = builder.build_recorder();
@@ -181,7 +186,15 @@ fn describe() {
         Unit::Seconds,
         "Time spent solving, without the queue wait, parsing or encoding the answer"
     );
-    describe_histogram!("solve_iterations", "Iterations per solve");
+    describe_histogram!(
+        "solve_iterations",
+        "Iterations per solve (the chosen start's)"
+    );
+    describe_histogram!(
+        "solve_starts",
+        "Starts per solve (1 without a search over routes)"
+    );
+
     describe_histogram!(
         "http_request_duration_seconds",
         Unit::Seconds,
