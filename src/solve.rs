@@ -2,6 +2,12 @@
 //! problem (model, integrator, cost terms), runs the solver and turns its
 //! output into the wire format. Shared by the CLI and the service.
 //!
+//! With obstacles, a solve is a search over routes: the plain start and
+//! the detours of [`ilqr::search`], each a solve of its own (a detour's
+//! begins with a guiding solve), run on this thread and on the threads a
+//! caller lends ([`Helpers`]), the best kept (`choose`). How and why:
+//! docs/solver.md, "Searching over routes".
+//!
 //! The model is chosen at run time ([`crate::models`]), the solver is
 //! compiled per model and integrator: [`solve`] hands the problem to its
 //! model's entry, which calls [`solve_model`] with the model's type and
