@@ -858,7 +858,7 @@ where
             objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPoint {
                 point: d.via,
                 knot: d.knot,
-                weight: guide_weight::<NX>(spec, M::POSITION),
+                weight: guide_weight(spec, M::POSITION),
                 position: M::POSITION,
             }),
         ),
@@ -974,7 +974,7 @@ where
 /// The guiding solve's via-point weight: ten times the largest terminal
 /// weight on the position (at least 1), so that the via-point wins over
 /// the obstacle's push and the goal's pull.
-fn guide_weight<const NX: usize>(spec: &ProblemSpec, (px, py): (usize, usize)) -> f64 {
+fn guide_weight(spec: &ProblemSpec, (px, py): (usize, usize)) -> f64 {
     let w = &spec.weights.terminal;
     let at = |i: usize| w.get(i).copied().unwrap_or(0.0);
     10.0 * at(px).max(at(py)).max(1.0)

@@ -38,8 +38,9 @@ use tokio::sync::oneshot;
 type Job = Box<dyn FnOnce(usize) + Send + 'static>;
 
 /// A job lent to an idle worker ([`Pool::lend`]), called with a check that
-/// says whether an admitted job is waiting for a worker.
-pub type Lent = Box<dyn FnOnce(&dyn Fn() -> bool) + Send + 'static>;
+/// says whether an admitted job is waiting for a worker: a search's
+/// helper.
+pub use crate::solve::Helper as Lent;
 
 /// Why [`Pool::submit`] refused a job.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
@@ -131,6 +132,25 @@ impl State {
             .zip(&self.lent)
             .filter(|(r, lent)| r.is_some() && !**lent)
             .count()
+    }
+
+    /// Queue `job` under a new id: a lent one ahead of the queue (only an
+    /// idle worker takes it), an admitted one behind it.
+    fn enqueue(&mut self, timing: Timing, job: Job, lent: bool) -> u64 {
+        let id = self.next_id;
+        self.next_id += 1;
+        let queued = Queued {
+            id,
+            timing,
+            job,
+            lent,
+        };
+        if lent {
+            self.queue.push_front(queued);
+        } else {
+            self.queue.push_back(queued);
+        }
+        id
     }
 
     /// Admitted jobs waiting.
@@ -279,14 +299,7 @@ impl Pool {
                 });
             }
         }
-        let id = st.next_id;
-        st.next_id += 1;
-        st.queue.push_back(Queued {
-            id,
-            timing,
-            job,
-            lent: false,
-        });
+        let id = st.enqueue(timing, job, false);
         let someone_waits = st.idle > 0;
         drop(st);
         if someone_waits {
@@ -324,14 +337,7 @@ impl Pool {
             st.running[worker] = None;
             st.lent[worker] = false;
         });
-        let id = st.next_id;
-        st.next_id += 1;
-        st.queue.push_front(Queued {
-            id,
-            timing,
-            job,
-            lent: true,
-        });
+        st.enqueue(timing, job, true);
         drop(st);
         self.shared.wake.notify_one();
         Ok(())
