@@ -600,7 +600,7 @@ where
     let deadline = time_limit.and_then(|t| started.checked_add(t));
     let starts = Arc::new(starts::<M, NX, NU>(spec));
     let n = starts.len();
-    let mut attempts = if n == 1 {
+    let attempts = if n == 1 {
         vec![attempt::<M, NX, NU>(
             spec, starts[0], deadline, cancel, progress,
         )]
@@ -619,10 +619,7 @@ where
     };
     // Every start builds the same problem: one that cannot be solved fails
     // them all alike, and the first says why.
-    if let Some(at) = attempts.iter().position(Result::is_err) {
-        return Err(attempts.swap_remove(at).err().expect("an error at `at`"));
-    }
-    let attempts: Vec<Attempt> = attempts.into_iter().flatten().collect();
+    let attempts: Vec<Attempt> = attempts.into_iter().collect::<Result<_, _>>()?;
     let chosen = choose(&attempts, spec.solver.constraint_tolerance);
     let rows = attempts
         .iter()
