@@ -894,6 +894,12 @@ mod tests {
         let mut spec = slow(20_000);
         // The seed's obstacle in the way: three starts.
         spec.obstacles[99] = crate::problem::Obstacle::point([4.5, 4.5], 1000.0);
+        // Only a worker already waiting is lent: let both threads get there.
+        let t = Instant::now();
+        while service.pool.idle() < 2 {
+            assert!(t.elapsed() < Duration::from_secs(2), "workers never idle");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
         let pending = service
             .submit(SolveRequest::new(spec, Transport::Http), status)
             .unwrap();

@@ -356,6 +356,13 @@ impl Pool {
         self.shared.lock().waiting_count()
     }
 
+    /// Workers waiting for a job. A worker counts only once its thread has
+    /// reached its wait, so a pool just built may show fewer for a moment.
+    #[cfg(test)]
+    pub(crate) fn idle(&self) -> usize {
+        self.shared.lock().idle
+    }
+
     /// Workers running a lent job.
     pub fn lent(&self) -> usize {
         self.shared.lock().lent.iter().filter(|l| **l).count()
@@ -557,7 +564,7 @@ mod tests {
     async fn a_lent_job_runs_only_on_an_idle_worker_and_gives_way() {
         let pool = Pool::new(2, 0).unwrap();
         // Both workers have reached their wait.
-        while pool.shared.lock().idle < 2 {
+        while pool.idle() < 2 {
             std::thread::sleep(Duration::from_millis(1));
         }
         let (_busy, release) = block_a_worker(&pool, anytime());
