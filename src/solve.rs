@@ -18,9 +18,9 @@
 //! so a service worker allocates only the answer's own vectors per request.
 
 use std::any::Any;
-use std::cell::RefCell;
+use std::cell::{Cell, RefCell};
 use std::sync::atomic::{AtomicBool, AtomicUsize, Ordering};
-use std::sync::{Arc, mpsc};
+use std::sync::{Arc, OnceLock, mpsc};
 use std::time::{Duration, Instant};
 
 use ilqr::{
@@ -202,7 +202,8 @@ pub struct SolveResult {
     pub starts: Vec<StartReport>,
     /// Wall-clock time spent solving, in ms: every start's, which run side
     /// by side on idle workers (the sum of the starts' `solve_time_ms` is
-    /// the CPU time).
+    /// their CPU time; a detour begun on an idle worker and then ruled out
+    /// is not listed).
     pub solve_time_ms: f64,
     /// Time spent waiting for a worker, in ms (0 outside the service).
     pub queue_time_ms: f64,
@@ -600,14 +601,16 @@ where
     let deadline = time_limit.and_then(|t| started.checked_add(t));
     let starts = Arc::new(starts::<M, NX, NU>(spec));
     let n = starts.len();
-    let attempts = if n == 1 {
-        vec![attempt::<M, NX, NU>(
-            spec, starts[0], deadline, cancel, progress,
+    let ran: Vec<(usize, Attempt)> = if n == 1 {
+        vec![(
+            0,
+            attempt::<M, NX, NU>(spec, starts[0], deadline, cancel, progress)?,
         )]
     } else {
         let here = |i: usize, progress: &mut dyn FnMut(&TraceEntry)| {
             attempt::<M, NX, NU>(spec, starts[i], deadline, cancel, progress)
         };
+        let keep = |plain: &Attempt| kept::<M, NX, NU>(spec, &starts, plain);
         let lent = helpers.map(|h| {
             let (spec, cancel, starts) = (h.spec, h.cancel, Arc::clone(&starts));
             let run: Arc<StartFn> = Arc::new(move |i, progress| {
@@ -615,26 +618,64 @@ where
             });
             (h.lend, run)
         });
-        search(n, &here, lent, progress)
+        // Every start builds the same problem: one that cannot be solved
+        // fails them all alike, and the first says why.
+        search(n, &here, &keep, lent, progress)
+            .into_iter()
+            .map(|(i, outcome)| outcome.map(|a| (i, a)))
+            .collect::<Result<_, _>>()?
     };
-    // Every start builds the same problem: one that cannot be solved fails
-    // them all alike, and the first says why.
-    let attempts: Vec<Attempt> = attempts.into_iter().collect::<Result<_, _>>()?;
+    let attempts: Vec<&Attempt> = ran.iter().map(|(_, a)| a).collect();
     let chosen = choose(&attempts, spec.solver.constraint_tolerance);
-    let rows = attempts
+    let rows = ran
         .iter()
-        .zip(starts.iter())
         .enumerate()
-        .map(|(i, (a, start))| start_report(spec, start, a, i == chosen))
+        .map(|(k, (i, a))| start_report(spec, &starts[*i], a, k == chosen))
         .collect();
-    let mut result = attempts
+    let mut result = ran
         .into_iter()
         .nth(chosen)
         .expect("`choose` picks one of the attempts")
+        .1
         .result;
     result.starts = rows;
     result.solve_time_ms = millis(started.elapsed());
     Ok(result)
+}
+
+/// Which of `starts` a search keeps, given its plain start's outcome: the
+/// plain start, then the detours in order up to `solver.max_starts` in
+/// all, less those on a side of their obstacle the plain start's answer
+/// already takes (when it converged: it is that side's local optimum, or
+/// one near it, and a detour there would as a rule find it again).
+fn kept<M: Model<NX, NU>, const NX: usize, const NU: usize>(
+    spec: &ProblemSpec,
+    starts: &[Start],
+    plain: &Attempt,
+) -> Vec<bool> {
+    let r = &plain.result;
+    let (px, py) = M::POSITION;
+    let path = || {
+        r.states.iter().map(move |x| {
+            Vector2::new(
+                x.get(px).copied().unwrap_or(f64::NAN),
+                x.get(py).copied().unwrap_or(f64::NAN),
+            )
+        })
+    };
+    let settled = r.status == SolveStatus::Converged;
+    let mut room = spec.solver.max_starts.saturating_sub(1);
+    starts
+        .iter()
+        .map(|start| match start {
+            Start::Plain => true,
+            Start::Detour(d) => {
+                let keep = room > 0 && !(settled && d.is_taken_by(path()));
+                room -= usize::from(keep);
+                keep
+            }
+        })
+        .collect()
 }
 
 /// Runs start `i`, sending its rows to the callback.
@@ -654,22 +695,53 @@ enum Message {
     Done(usize, Box<Result<Attempt, Unsolvable>>),
 }
 
-/// Run starts `0..n`: on this thread with `here`, and, where `lent` finds
-/// idle threads, also on them. Every thread takes the next start not yet
-/// taken, so a helper that is late finds nothing left and ends; this
-/// thread waits only for starts already running elsewhere. Under load no
-/// thread is idle and the starts run one after another here.
+/// How long the plain start runs before idle threads begin detours that
+/// it may yet rule out. A shorter plain start is left to decide first: a
+/// thread woken beside it (0.5–1 ms to wake on a small VM) would get
+/// little done, and what it began would compete with the plain start for
+/// the cores and, half the time, be dropped.
+const SPECULATE_AFTER: Duration = Duration::from_millis(5);
+
+/// Run a search over starts `0..n`. Start 0, the plain start, runs on this
+/// thread first; its outcome decides (`keep`) which of the others to run.
+/// Those run on this thread and, where `lent` finds idle threads, on them
+/// too: every thread takes the next start not yet taken, so a helper that
+/// is late finds nothing left and ends, and this thread waits only for
+/// starts already running elsewhere. Under load no thread is idle and the
+/// starts run one after another here.
+///
+/// Helpers are lent once the plain start has ended, when more than one
+/// start is left, or once it has run for [`SPECULATE_AFTER`]. Those lent
+/// before it ends run the next start whether or not it will be kept; one
+/// that is not kept is dropped, rows and all. Either way the answer is the
+/// same however the starts were spread over threads, and a helper's waste
+/// is at most one start on a thread that was idle.
+///
+/// Returns the kept starts' outcomes with their indices, in order; only
+/// the plain start's error when it fails.
 fn search(
     n: usize,
     here: &HereFn<'_>,
+    keep: &dyn Fn(&Attempt) -> Vec<bool>,
     lent: Option<(Lend<'_>, Arc<StartFn>)>,
     progress: &mut dyn FnMut(&TraceEntry),
-) -> Vec<Result<Attempt, Unsolvable>> {
-    let next = Arc::new(AtomicUsize::new(0));
+) -> Vec<(usize, Result<Attempt, Unsolvable>)> {
+    // Start 0 is this thread's; the others are taken from 1.
+    let next = Arc::new(AtomicUsize::new(1));
+    let decided = Arc::new(OnceLock::<Vec<bool>>::new());
     let (tx, rx) = mpsc::channel::<Message>();
-    if let Some((lend, run)) = lent {
-        for _ in 1..n {
-            let (next, tx, run) = (Arc::clone(&next), tx.clone(), Arc::clone(&run));
+    let lent_yet = Cell::new(false);
+    // Up to `helpers` idle threads, once.
+    let lend_helpers = |helpers: usize, tx: &mpsc::Sender<Message>| {
+        let Some((lend, run)) = &lent else {
+            return;
+        };
+        if lent_yet.replace(true) {
+            return;
+        }
+        for _ in 0..helpers {
+            let (next, tx, run) = (Arc::clone(&next), tx.clone(), Arc::clone(run));
+            let decided = Arc::clone(&decided);
             let job: Helper = Box::new(move |give_way| {
                 // Between starts: a request waiting for this worker gets it,
                 // and this search's owner runs the rest.
@@ -677,6 +749,9 @@ fn search(
                     let i = next.fetch_add(1, Ordering::SeqCst);
                     if i >= n {
                         break;
+                    }
+                    if decided.get().is_some_and(|kept| !kept[i]) {
+                        continue;
                     }
                     let outcome = run(i, &mut |row| {
                         let _ = tx.send(Message::Row(i, row.clone()));
@@ -688,51 +763,139 @@ fn search(
                 break;
             }
         }
-    }
-    drop(tx);
-    let mut done: Vec<Option<Result<Attempt, Unsolvable>>> = (0..n).map(|_| None).collect();
-    let take = |m: Message,
-                done: &mut Vec<Option<Result<Attempt, Unsolvable>>>,
-                progress: &mut dyn FnMut(&TraceEntry)| match m {
-        Message::Row(i, row) => progress(&TraceEntry {
-            start: Some(i),
-            ..row
-        }),
-        Message::Done(i, outcome) => done[i] = Some(*outcome),
     };
+    let mut inbox = Inbox::new(n);
+    let began = Instant::now();
+    let plain = here(0, &mut |row| {
+        if !lent_yet.get() && began.elapsed() >= SPECULATE_AFTER {
+            lend_helpers(n - 1, &tx);
+        }
+        inbox.drain(&rx, progress);
+        progress(&TraceEntry {
+            start: Some(0),
+            ..row.clone()
+        });
+    });
+    let plain = match plain {
+        Ok(plain) => plain,
+        Err(e) => return vec![(0, Err(e))],
+    };
+    let kept = decided.get_or_init(|| keep(&plain)).clone();
+    inbox.decide(&kept, progress);
+    inbox.done[0] = Some(Ok(plain));
+    // One start left is this thread's: a helper would only make it wait.
+    let left = kept.iter().skip(1).filter(|&&k| k).count();
+    lend_helpers(left.saturating_sub(1), &tx);
+    drop(tx);
     loop {
         let i = next.fetch_add(1, Ordering::SeqCst);
         if i >= n {
             break;
         }
+        let Some(place) = inbox.place(i) else {
+            continue;
+        };
         let outcome = here(i, &mut |row| {
-            while let Ok(m) = rx.try_recv() {
-                take(m, &mut done, progress);
-            }
+            inbox.drain(&rx, progress);
             progress(&TraceEntry {
-                start: Some(i),
+                start: Some(place),
                 ..row.clone()
             });
         });
-        done[i] = Some(outcome);
+        inbox.done[i] = Some(outcome);
     }
-    while done.iter().any(Option::is_none) {
+    let waiting = |inbox: &Inbox| (0..n).any(|i| kept[i] && inbox.done[i].is_none());
+    while waiting(&inbox) {
         match rx.recv() {
-            Ok(m) => take(m, &mut done, progress),
+            Ok(m) => inbox.take(m, progress),
             // Every helper has ended, one without reporting its start.
             Err(_) => break,
         }
     }
-    done.into_iter()
-        .map(|d| d.unwrap_or_else(|| panic!("a start of the search panicked on another thread")))
+    (0..n)
+        .filter(|&i| kept[i])
+        .map(|i| {
+            let outcome = inbox.done[i]
+                .take()
+                .unwrap_or_else(|| panic!("a start of the search panicked on another thread"));
+            (i, outcome)
+        })
         .collect()
+}
+
+/// What a search's owner has heard from the threads helping it.
+struct Inbox {
+    done: Vec<Option<Result<Attempt, Unsolvable>>>,
+    /// Each start's place among the kept ones (its `start` in the rows),
+    /// once the plain start has decided them.
+    places: Option<Vec<Option<usize>>>,
+    /// Rows that came before that decision.
+    held: Vec<(usize, TraceEntry)>,
+}
+
+impl Inbox {
+    fn new(n: usize) -> Self {
+        Self {
+            done: (0..n).map(|_| None).collect(),
+            places: None,
+            held: Vec::new(),
+        }
+    }
+
+    fn place(&self, i: usize) -> Option<usize> {
+        self.places.as_ref().and_then(|p| p[i])
+    }
+
+    /// Number the kept starts and pass on the rows held for them.
+    fn decide(&mut self, kept: &[bool], progress: &mut dyn FnMut(&TraceEntry)) {
+        let mut count = 0;
+        self.places = Some(
+            kept.iter()
+                .map(|&k| {
+                    count += usize::from(k);
+                    k.then_some(count - 1)
+                })
+                .collect(),
+        );
+        for (i, row) in std::mem::take(&mut self.held) {
+            self.forward(i, row, progress);
+        }
+    }
+
+    fn forward(&mut self, i: usize, row: TraceEntry, progress: &mut dyn FnMut(&TraceEntry)) {
+        if self.places.is_none() {
+            self.held.push((i, row));
+        } else if let Some(place) = self.place(i) {
+            progress(&TraceEntry {
+                start: Some(place),
+                ..row
+            });
+        }
+    }
+
+    fn take(&mut self, m: Message, progress: &mut dyn FnMut(&TraceEntry)) {
+        match m {
+            Message::Row(i, row) => self.forward(i, row, progress),
+            Message::Done(i, outcome) => {
+                if self.place(i).is_some() || self.places.is_none() {
+                    self.done[i] = Some(*outcome);
+                }
+            }
+        }
+    }
+
+    fn drain(&mut self, rx: &mpsc::Receiver<Message>, progress: &mut dyn FnMut(&TraceEntry)) {
+        while let Ok(m) = rx.try_recv() {
+            self.take(m, progress);
+        }
+    }
 }
 
 /// The start to keep: the cheapest that converged; failing that the
 /// cheapest that meets the constraints; failing that the least violating.
 /// Ties and near-ties ([`NEAR_TIE`]) go to the earlier start, so the
 /// choice is the same whatever order the starts ended in.
-fn choose(attempts: &[Attempt], constraint_tolerance: f64) -> usize {
+fn choose(attempts: &[&Attempt], constraint_tolerance: f64) -> usize {
     let class = |r: &SolveResult| {
         if r.status == SolveStatus::Converged {
             0
@@ -765,8 +928,8 @@ fn choose(attempts: &[Attempt], constraint_tolerance: f64) -> usize {
 }
 
 /// The starts of `spec`: the plain one, then (when it searches) the
-/// detours around the obstacles in the way, up to `solver.max_starts` in
-/// all.
+/// detours around the obstacles in the way, from which `kept` picks up to
+/// `solver.max_starts` in all.
 fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec) -> Vec<Start> {
     let mut out = vec![Start::Plain];
     // `max_iterations: 0` asks for the plain guess rolled out, no more.
@@ -803,7 +966,9 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
     out.extend(
         detours
             .into_iter()
-            .take(spec.solver.max_starts.saturating_sub(1))
+            // The plain start keeps at most one side of each obstacle
+            // out (`kept`): twice the room leaves enough.
+            .take(2 * spec.solver.max_starts.saturating_sub(1))
             .map(Start::Detour),
     );
     out
@@ -1817,7 +1982,7 @@ mod tests {
             guide_iterations: None,
         };
         use SolveStatus::{Converged, Infeasible, MaxIterations};
-        let pick = |a: &[Attempt]| choose(a, 1e-6);
+        let pick = |a: &[Attempt]| choose(&a.iter().collect::<Vec<_>>(), 1e-6);
         assert_eq!(
             pick(&[at(Converged, 10.0, 0.0), at(Converged, 9.0, 0.0)]),
             1

@@ -101,7 +101,7 @@ async fn the_empty_problem_solves_the_seed_scenario() {
     // single solve from hover goes west, 5520.212).
     let cost = r["cost"].as_f64().unwrap();
     assert!((cost - 5418.304).abs() / 5418.304 < 1e-6, "{cost}");
-    assert_eq!(r["starts"].as_array().unwrap().len(), 3);
+    assert_eq!(r["starts"].as_array().unwrap().len(), 2);
     assert_eq!(r["states"].as_array().unwrap().len(), 101);
     assert_eq!(r["controls"].as_array().unwrap().len(), 100);
     let feedback = r["gains"]["feedback"].as_array().unwrap();

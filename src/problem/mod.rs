@@ -442,8 +442,8 @@ pub struct SolverSpec {
     pub constraint_tolerance: f64,
     /// Search over the ways around the obstacles: besides the plain start
     /// (the model's rest controls, or the given ones), solve from detour
-    /// starts that pass each obstacle in the way on either side, and return
-    /// the best answer (see docs/solver.md, "Searching over routes"; each
+    /// starts that pass each obstacle in the way on the side the plain
+    /// start's answer does not take, and return the best answer (see docs/solver.md, "Searching over routes"; each
     /// start is listed in the result's `starts`). Default: true, unless
     /// `initial_controls` or `warm_start` is given, when the solve is the
     /// single local solve from them. False: the single local solve from
@@ -457,8 +457,9 @@ pub struct SolverSpec {
     pub multi_start: Option<bool>,
     /// The most starts a search solves from, the plain start included:
     /// detours beyond it are left out, those of the obstacles least in the
-    /// way first. Default 7 (the plain start and both sides of three
-    /// obstacles); from 1 to 32.
+    /// way first. Default 7 (the plain start and a detour round each of six
+    /// obstacles; both sides of three when the plain start does not
+    /// converge); from 1 to 32.
     #[serde(deserialize_with = "wire::de_starts")]
     #[schema(default = 7, minimum = 1, maximum = 32)]
     pub max_starts: usize,

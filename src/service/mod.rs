@@ -919,6 +919,58 @@ mod tests {
         }
     }
 
+    /// A plain start that runs past `SPECULATE_AFTER` gets an idle worker
+    /// beside it, which begins the west detour before the plain start (it
+    /// goes west) rules it out. That detour is dropped: the answer is the
+    /// one worker's, start for start.
+    #[tokio::test]
+    async fn a_detour_begun_before_the_plain_start_decides_is_dropped() {
+        // The seed at 3000 steps: a plain start of about 20 ms here.
+        let spec =
+            crate::problem::parse(br#"{"horizon": 3000, "dt": 0.0016666666666666668}"#).unwrap();
+        let answer = |r: &SolveResult| -> Result<serde_json::Value, EncodeError> {
+            let mut r = r.clone();
+            (r.solve_time_ms, r.queue_time_ms) = (0.0, 0.0);
+            for row in r.trace.iter_mut().flatten() {
+                row.elapsed_ms = 0.0;
+            }
+            for start in &mut r.starts {
+                start.solve_time_ms = 0.0;
+            }
+            Ok(serde_json::to_value(&r).unwrap())
+        };
+        let alone = service(1, 0)
+            .solve(SolveRequest::new(spec.clone(), Transport::Http), answer)
+            .await
+            .unwrap()
+            .answer;
+        let labels: Vec<_> = alone["starts"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|s| s["label"].as_str().unwrap().to_owned())
+            .collect();
+        assert_eq!(labels, ["rest controls", "east of obstacle 0"]);
+        let service = service(2, 0);
+        let t = Instant::now();
+        while service.pool.idle() < 2 {
+            assert!(t.elapsed() < Duration::from_secs(2), "workers never idle");
+            tokio::time::sleep(Duration::from_millis(1)).await;
+        }
+        let pending = service
+            .submit(SolveRequest::new(spec, Transport::Http), answer)
+            .unwrap();
+        let mut lent = false;
+        let t = Instant::now();
+        // Until the search ends (nothing running or waiting).
+        while !lent && service.counts() != (0, 0) && t.elapsed() < Duration::from_secs(5) {
+            lent = service.pool.lent() == 1;
+            tokio::time::sleep(Duration::from_micros(200)).await;
+        }
+        assert!(lent, "no worker was lent while the search ran");
+        assert_eq!(pending.finish().await.unwrap().answer, alone);
+    }
+
     /// Dropping a pending solve cancels it: the only worker is free again
     /// long before the solve's budget.
     #[tokio::test]

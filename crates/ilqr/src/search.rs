@@ -56,6 +56,8 @@ pub struct Detour {
     pub obstacle: usize,
     /// The side of the straight path.
     pub side: Side,
+    /// The obstacle's centre, m.
+    pub center: Vector2<f64>,
     /// The via-point, m.
     pub via: Vector2<f64>,
     /// The unit vector from the obstacle's centre towards the via-point.
@@ -111,6 +113,7 @@ pub fn detours(
             out.push(Detour {
                 obstacle: j,
                 side,
+                center: c,
                 via: c + n * out_by,
                 direction: n,
                 knot,
@@ -119,6 +122,27 @@ pub fn detours(
         }
     }
     out
+}
+
+impl Detour {
+    /// Whether `path` (positions, m) already passes the obstacle on this
+    /// detour's side: at the path's closest approach to the obstacle's
+    /// centre it lies beyond the centre along [`Detour::direction`]. A path
+    /// through the centre, or one with a position that is not finite,
+    /// passes on neither side.
+    pub fn is_taken_by(&self, path: impl IntoIterator<Item = Vector2<f64>>) -> bool {
+        let mut nearest: Option<(f64, Vector2<f64>)> = None;
+        for p in path {
+            let d = (p - self.center).norm_squared();
+            if !d.is_finite() {
+                return false;
+            }
+            if nearest.is_none_or(|(best, _)| d < best) {
+                nearest = Some((d, p));
+            }
+        }
+        nearest.is_some_and(|(_, p)| (p - self.center).dot(&self.direction) > 0.0)
+    }
 }
 
 /// How far the region reaches from its centre along the unit vector `n`.
@@ -240,6 +264,34 @@ mod tests {
         // Turned a quarter, its 2 m width lies along y: 1 m out, plus 0.5.
         assert!((d[0].via - Vector2::new(5.0, 1.5)).norm() < 1e-12, "{d:?}");
         assert!((d[0].gap + 1.0).abs() < 1e-9, "{}", d[0].gap);
+    }
+
+    /// A path is on a detour's side where it comes nearest the centre,
+    /// wherever else it goes; one through the centre, or not finite, is on
+    /// neither.
+    #[test]
+    fn a_path_takes_the_side_it_passes_nearest_the_centre_on() {
+        let o = circle(5.0, 0.0, 1.0, 1.0);
+        let d = detours(Vector2::zeros(), Vector2::new(10.0, 0.0), 10, &[o]);
+        let (left, right) = (&d[0], &d[1]);
+        // Along the x axis the left is north. This path starts south of
+        // the axis and bends north, 2 m up, as it passes x = 5.
+        let north: Vec<_> = (0..=10)
+            .map(|k| {
+                let x = k as f64;
+                Vector2::new(x, 2.0 - 0.5 * (x - 5.0).powi(2))
+            })
+            .collect();
+        assert!(north[0].y < 0.0);
+        assert!(left.is_taken_by(north.iter().copied()));
+        assert!(!right.is_taken_by(north.iter().copied()));
+        let mirrored = north.iter().map(|p| Vector2::new(p.x, -p.y));
+        assert!(right.is_taken_by(mirrored.clone()) && !left.is_taken_by(mirrored));
+        let through = (0..=10).map(|k| Vector2::new(k as f64, 0.0));
+        assert!(!left.is_taken_by(through.clone()) && !right.is_taken_by(through));
+        let broken = [Vector2::new(5.0, 1.0), Vector2::new(f64::NAN, 0.0)];
+        assert!(!left.is_taken_by(broken));
+        assert!(!left.is_taken_by([]));
     }
 
     #[test]
