@@ -62,8 +62,8 @@ def main() -> int:
             process = {k: 0.0 for k in bodies}
             costs = {}
             # Interleaved in blocks, so that both see the same machine.
-            block = 20
-            for _ in range(max(1, args.requests // block)):
+            block = 20  # --requests is rounded up to a multiple of this
+            for _ in range(-(-args.requests // block)):
                 for name, body in bodies.items():
                     before = process_cpu_ms(pid)
                     for _ in range(block):

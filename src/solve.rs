@@ -468,7 +468,9 @@ pub type Helper = Box<dyn FnOnce(&dyn Fn() -> bool) + Send + 'static>;
 pub struct Helpers<'a> {
     /// The problem, for the other threads.
     pub spec: Arc<ProblemSpec>,
-    /// The solve's cancellation flag, polled by every start.
+    /// The solve's cancellation flag, polled by this thread's starts and
+    /// passed on to the other threads' (within about 5 ms while this
+    /// thread waits for them).
     pub cancel: Arc<AtomicBool>,
     /// Runs a job on an idle thread now, or hands it back when none is
     /// idle.
@@ -527,7 +529,9 @@ pub fn solve_observed(
 /// [`solve_observed`], with a search's starts also run on the threads
 /// `helpers.lend` finds idle. Rows of starts on other threads reach
 /// `progress` on this thread, when it next reports a row of its own or
-/// once its own starts are done.
+/// once its own starts are done; those of a start begun before the plain
+/// start decided which are kept, only after that decision, and only if
+/// it is kept.
 pub fn solve_shared(
     helpers: Helpers<'_>,
     time_limit: Option<Duration>,
@@ -612,15 +616,15 @@ where
         };
         let keep = |plain: &Attempt| kept::<M, NX, NU>(spec, &starts, plain);
         let lent = helpers.map(|h| {
-            let (spec, cancel, starts) = (h.spec, h.cancel, Arc::clone(&starts));
-            let run: Arc<StartFn> = Arc::new(move |i, progress| {
-                attempt::<M, NX, NU>(&spec, starts[i], deadline, &cancel, progress)
+            let (spec, starts) = (h.spec, Arc::clone(&starts));
+            let run: Arc<StartFn> = Arc::new(move |i, stop, progress| {
+                attempt::<M, NX, NU>(&spec, starts[i], deadline, stop, progress)
             });
             (h.lend, run)
         });
         // Every start builds the same problem: one that cannot be solved
         // fails them all alike, and the first says why.
-        search(n, &here, &keep, lent, progress)
+        search(n, &here, &keep, lent, cancel, progress)
             .into_iter()
             .map(|(i, outcome)| outcome.map(|a| (i, a)))
             .collect::<Result<_, _>>()?
@@ -678,9 +682,12 @@ fn kept<M: Model<NX, NU>, const NX: usize, const NU: usize>(
         .collect()
 }
 
-/// Runs start `i`, sending its rows to the callback.
-type StartFn =
-    dyn Fn(usize, &mut dyn FnMut(&TraceEntry)) -> Result<Attempt, Unsolvable> + Send + Sync;
+/// Runs start `i` on another thread, polling its own stop flag (the
+/// request's cancellation reaches it through the search's owner), and
+/// sending its rows to the callback.
+type StartFn = dyn Fn(usize, &AtomicBool, &mut dyn FnMut(&TraceEntry)) -> Result<Attempt, Unsolvable>
+    + Send
+    + Sync;
 
 /// Runs start `i` on this thread.
 type HereFn<'a> = dyn Fn(usize, &mut dyn FnMut(&TraceEntry)) -> Result<Attempt, Unsolvable> + 'a;
@@ -712,10 +719,14 @@ const SPECULATE_AFTER: Duration = Duration::from_millis(5);
 ///
 /// Helpers are lent once the plain start has ended, when more than one
 /// start is left, or once it has run for [`SPECULATE_AFTER`]. Those lent
-/// before it ends run the next start whether or not it will be kept; one
-/// that is not kept is dropped, rows and all. Either way the answer is the
-/// same however the starts were spread over threads, and a helper's waste
-/// is at most one start on a thread that was idle.
+/// before it ends take starts whether or not they will be kept; at the
+/// decision the ones not kept are stopped and dropped, rows and all, so
+/// the answer is the same however the starts were spread over threads,
+/// and the waste is idle threads' time while the plain start ran.
+///
+/// `cancel` (the request's) reaches the starts on other threads through
+/// their stop flags, set by this thread whenever it sees `cancel`: while
+/// it solves, or every [`STOP_POLL`] while it waits.
 ///
 /// Returns the kept starts' outcomes with their indices, in order; only
 /// the plain start's error when it fails.
@@ -724,36 +735,47 @@ fn search(
     here: &HereFn<'_>,
     keep: &dyn Fn(&Attempt) -> Vec<bool>,
     lent: Option<(Lend<'_>, Arc<StartFn>)>,
+    cancel: &AtomicBool,
     progress: &mut dyn FnMut(&TraceEntry),
 ) -> Vec<(usize, Result<Attempt, Unsolvable>)> {
-    // Start 0 is this thread's; the others are taken from 1.
-    let next = Arc::new(AtomicUsize::new(1));
-    let decided = Arc::new(OnceLock::<Vec<bool>>::new());
+    let shared = Arc::new(Shared {
+        // Start 0 is this thread's; the others are taken from 1.
+        next: AtomicUsize::new(1),
+        decided: OnceLock::new(),
+        stop: (0..n).map(|_| AtomicBool::new(false)).collect(),
+    });
+    // However this returns or unwinds, the helpers take no more starts and
+    // stop the ones they run: a search left behind wastes nothing.
+    let _abandon = Abandon(&shared);
+    let follow_cancel = || {
+        if cancel.load(Ordering::Relaxed) {
+            shared.stop_all();
+        }
+    };
     let (tx, rx) = mpsc::channel::<Message>();
     let lent_yet = Cell::new(false);
-    // Up to `helpers` idle threads, once.
+    // Up to `helpers` idle threads, until some were lent.
     let lend_helpers = |helpers: usize, tx: &mpsc::Sender<Message>| {
         let Some((lend, run)) = &lent else {
             return;
         };
-        if lent_yet.replace(true) {
+        if lent_yet.get() {
             return;
         }
         for _ in 0..helpers {
-            let (next, tx, run) = (Arc::clone(&next), tx.clone(), Arc::clone(run));
-            let decided = Arc::clone(&decided);
+            let (shared, tx, run) = (Arc::clone(&shared), tx.clone(), Arc::clone(run));
             let job: Helper = Box::new(move |give_way| {
                 // Between starts: a request waiting for this worker gets it,
                 // and this search's owner runs the rest.
                 while !give_way() {
-                    let i = next.fetch_add(1, Ordering::SeqCst);
+                    let i = shared.next.fetch_add(1, Ordering::SeqCst);
                     if i >= n {
                         break;
                     }
-                    if decided.get().is_some_and(|kept| !kept[i]) {
+                    if shared.decided.get().is_some_and(|kept| !kept[i]) {
                         continue;
                     }
-                    let outcome = run(i, &mut |row| {
+                    let outcome = run(i, &shared.stop[i], &mut |row| {
                         let _ = tx.send(Message::Row(i, row.clone()));
                     });
                     let _ = tx.send(Message::Done(i, Box::new(outcome)));
@@ -762,6 +784,7 @@ fn search(
             if lend(job).is_err() {
                 break;
             }
+            lent_yet.set(true);
         }
     };
     let mut inbox = Inbox::new(n);
@@ -770,6 +793,7 @@ fn search(
         if !lent_yet.get() && began.elapsed() >= SPECULATE_AFTER {
             lend_helpers(n - 1, &tx);
         }
+        follow_cancel();
         inbox.drain(&rx, progress);
         progress(&TraceEntry {
             start: Some(0),
@@ -780,7 +804,12 @@ fn search(
         Ok(plain) => plain,
         Err(e) => return vec![(0, Err(e))],
     };
-    let kept = decided.get_or_init(|| keep(&plain)).clone();
+    let kept = shared.decided.get_or_init(|| keep(&plain)).clone();
+    for (i, k) in kept.iter().enumerate() {
+        if !k {
+            shared.stop[i].store(true, Ordering::SeqCst);
+        }
+    }
     inbox.decide(&kept, progress);
     inbox.done[0] = Some(Ok(plain));
     // One start left is this thread's: a helper would only make it wait.
@@ -788,7 +817,7 @@ fn search(
     lend_helpers(left.saturating_sub(1), &tx);
     drop(tx);
     loop {
-        let i = next.fetch_add(1, Ordering::SeqCst);
+        let i = shared.next.fetch_add(1, Ordering::SeqCst);
         if i >= n {
             break;
         }
@@ -796,6 +825,7 @@ fn search(
             continue;
         };
         let outcome = here(i, &mut |row| {
+            follow_cancel();
             inbox.drain(&rx, progress);
             progress(&TraceEntry {
                 start: Some(place),
@@ -806,10 +836,12 @@ fn search(
     }
     let waiting = |inbox: &Inbox| (0..n).any(|i| kept[i] && inbox.done[i].is_none());
     while waiting(&inbox) {
-        match rx.recv() {
+        follow_cancel();
+        match rx.recv_timeout(STOP_POLL) {
             Ok(m) => inbox.take(m, progress),
+            Err(mpsc::RecvTimeoutError::Timeout) => {}
             // Every helper has ended, one without reporting its start.
-            Err(_) => break,
+            Err(mpsc::RecvTimeoutError::Disconnected) => break,
         }
     }
     (0..n)
@@ -821,6 +853,39 @@ fn search(
             (i, outcome)
         })
         .collect()
+}
+
+/// How often a search's owner, waiting for starts on other threads, looks
+/// at the request's cancellation flag.
+const STOP_POLL: Duration = Duration::from_millis(5);
+
+/// What a search's threads share.
+struct Shared {
+    /// The next start to take.
+    next: AtomicUsize,
+    /// Which starts are kept, once the plain start has ended.
+    decided: OnceLock<Vec<bool>>,
+    /// Each start's stop flag, polled like a cancellation flag.
+    stop: Vec<AtomicBool>,
+}
+
+impl Shared {
+    fn stop_all(&self) {
+        for flag in &self.stop {
+            flag.store(true, Ordering::SeqCst);
+        }
+    }
+}
+
+/// Ends a search for its helpers when dropped.
+struct Abandon<'a>(&'a Shared);
+
+impl Drop for Abandon<'_> {
+    fn drop(&mut self) {
+        // Past the last start (and far from wrapping round to the first).
+        self.0.next.store(self.0.stop.len(), Ordering::SeqCst);
+        self.0.stop_all();
+    }
 }
 
 /// What a search's owner has heard from the threads helping it.
@@ -859,6 +924,12 @@ impl Inbox {
         );
         for (i, row) in std::mem::take(&mut self.held) {
             self.forward(i, row, progress);
+        }
+        // A start ruled out that ended before the decision.
+        for (done, &k) in self.done.iter_mut().zip(kept) {
+            if !k {
+                *done = None;
+            }
         }
     }
 
@@ -968,7 +1039,7 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
             .into_iter()
             // The plain start keeps at most one side of each obstacle
             // out (`kept`): twice the room leaves enough.
-            .take(2 * spec.solver.max_starts.saturating_sub(1))
+            .take(spec.solver.max_starts.saturating_sub(1).saturating_mul(2))
             .map(Start::Detour),
     );
     out

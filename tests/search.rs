@@ -137,6 +137,19 @@ async fn multi_start_false_and_given_controls_solve_once() {
         labels,
         ["rest controls", "west of obstacle 0", "east of obstacle 0"]
     );
+    // `max_starts` caps the starts run, the plain one included.
+    let capped = solve(
+        &s,
+        &json!({"solver": {"max_iterations": 5, "max_starts": 2}}),
+    )
+    .await;
+    let labels: Vec<&str> = capped["starts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["label"].as_str().unwrap())
+        .collect();
+    assert_eq!(labels, ["rest controls", "west of obstacle 0"]);
 }
 
 /// Every start is deterministic, and so is which detours are kept: the

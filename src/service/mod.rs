@@ -892,7 +892,8 @@ mod tests {
     async fn dropping_a_search_cancels_every_start() {
         let service = service(2, 0);
         let mut spec = slow(20_000);
-        // The seed's obstacle in the way: three starts.
+        // The seed's obstacle in the way: a detour on either side, one begun
+        // beside the plain start (which never ends) once it has run 5 ms.
         spec.obstacles[99] = crate::problem::Obstacle::point([4.5, 4.5], 1000.0);
         // Only a worker already waiting is lent: let both threads get there.
         let t = Instant::now();
@@ -921,8 +922,9 @@ mod tests {
 
     /// A plain start that runs past `SPECULATE_AFTER` gets an idle worker
     /// beside it, which begins the west detour before the plain start (it
-    /// goes west) rules it out. That detour is dropped: the answer is the
-    /// one worker's, start for start.
+    /// goes west) rules it out. That detour is dropped, rows and all: the
+    /// answer is the one worker's, start for start, and every streamed row
+    /// belongs to a listed start, tagged with its place in `starts`.
     #[tokio::test]
     async fn a_detour_begun_before_the_plain_start_decides_is_dropped() {
         // The seed at 3000 steps: a plain start of about 20 ms here.
@@ -957,9 +959,11 @@ mod tests {
             assert!(t.elapsed() < Duration::from_secs(2), "workers never idle");
             tokio::time::sleep(Duration::from_millis(1)).await;
         }
-        let pending = service
-            .submit(SolveRequest::new(spec, Transport::Http), answer)
-            .unwrap();
+        let rows = Arc::new(std::sync::Mutex::new(Vec::new()));
+        let sink = Arc::clone(&rows);
+        let request = SolveRequest::new(spec, Transport::Http)
+            .progress(move |row| sink.lock().unwrap().push(row.clone()));
+        let pending = service.submit(request, answer).unwrap();
         let mut lent = false;
         let t = Instant::now();
         // Until the search ends (nothing running or waiting).
@@ -969,6 +973,20 @@ mod tests {
         }
         assert!(lent, "no worker was lent while the search ran");
         assert_eq!(pending.finish().await.unwrap().answer, alone);
+        let rows = rows.lock().unwrap();
+        let starts = alone["starts"].as_array().unwrap();
+        for (i, start) in starts.iter().enumerate() {
+            let mine: Vec<_> = rows.iter().filter(|r| r.start == Some(i)).collect();
+            assert_eq!(mine.len() as u64, start["iterations"], "start {i}");
+            assert!(mine.iter().enumerate().all(|(k, r)| r.iteration == k + 1));
+        }
+        assert_eq!(
+            rows.len() as u64,
+            starts
+                .iter()
+                .map(|s| s["iterations"].as_u64().unwrap())
+                .sum::<u64>()
+        );
     }
 
     /// Dropping a pending solve cancels it: the only worker is free again
