@@ -19,6 +19,16 @@ fn relative(a: f64, b: f64) -> f64 {
     (a - b).abs() / b.abs()
 }
 
+/// The labels of a result's starts, in order.
+fn labels(r: &Value) -> Vec<&str> {
+    r["starts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|s| s["label"].as_str().unwrap())
+        .collect()
+}
+
 /// IPOPT's optimum of the seed's east route (`bench/casadi_ipopt.py` from
 /// this project's east answer; from hover IPOPT, like iLQR, goes west).
 const IPOPT_EAST: f64 = 5418.303870368021;
@@ -46,12 +56,8 @@ async fn the_seed_takes_the_cheapest_route_and_lists_its_starts() {
     let cost = r["cost"].as_f64().unwrap();
     assert!(relative(cost, IPOPT_EAST) < 1e-8, "{cost}");
     let starts = r["starts"].as_array().unwrap();
-    let labels: Vec<&str> = starts
-        .iter()
-        .map(|s| s["label"].as_str().unwrap())
-        .collect();
     // The plain start goes west: the west detour is not run again.
-    assert_eq!(labels, ["rest controls", "east of obstacle 0"]);
+    assert_eq!(labels(&r), ["rest controls", "east of obstacle 0"]);
     assert_eq!(
         starts
             .iter()
@@ -127,14 +133,8 @@ async fn multi_start_false_and_given_controls_solve_once() {
     assert_eq!(timeless(two), timeless(all));
     // A plain start that does not converge decides no side: both run.
     let capped = solve(&s, &json!({"solver": {"max_iterations": 5}})).await;
-    let labels: Vec<&str> = capped["starts"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["label"].as_str().unwrap())
-        .collect();
     assert_eq!(
-        labels,
+        labels(&capped),
         ["rest controls", "west of obstacle 0", "east of obstacle 0"]
     );
     // `max_starts` caps the starts run, the plain one included.
@@ -143,13 +143,7 @@ async fn multi_start_false_and_given_controls_solve_once() {
         &json!({"solver": {"max_iterations": 5, "max_starts": 2}}),
     )
     .await;
-    let labels: Vec<&str> = capped["starts"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["label"].as_str().unwrap())
-        .collect();
-    assert_eq!(labels, ["rest controls", "west of obstacle 0"]);
+    assert_eq!(labels(&capped), ["rest controls", "west of obstacle 0"]);
 }
 
 /// Every start is deterministic, and so is which detours are kept: the
@@ -187,17 +181,9 @@ async fn the_answer_is_the_same_on_one_worker_two_and_the_cli() {
     let cli: Value = serde_json::from_slice(&std::fs::read(&out).unwrap()).unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
     answers.push(timeless(cli));
-    // The plain start passes south of both: the north detours remain. On
-    // two workers a helper may have run a south one before that was known,
-    // and it is dropped.
-    let labels: Vec<&str> = answers[0]["starts"]
-        .as_array()
-        .unwrap()
-        .iter()
-        .map(|s| s["label"].as_str().unwrap())
-        .collect();
+    // The plain start passes south of both: the north detours remain.
     assert_eq!(
-        labels,
+        labels(&answers[0]),
         [
             "rest controls",
             "north of obstacle 0",
