@@ -658,15 +658,7 @@ fn kept<M: Model<NX, NU>, const NX: usize, const NU: usize>(
     plain: &Attempt,
 ) -> Vec<bool> {
     let r = &plain.result;
-    let (px, py) = M::POSITION;
-    let path = || {
-        r.states.iter().map(move |x| {
-            Vector2::new(
-                x.get(px).copied().unwrap_or(f64::NAN),
-                x.get(py).copied().unwrap_or(f64::NAN),
-            )
-        })
-    };
+    let path = || r.states.iter().map(|x| planar(x, M::POSITION));
     let settled = r.status == SolveStatus::Converged;
     let mut room = spec.solver.max_starts.saturating_sub(1);
     starts
@@ -1007,14 +999,10 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
     if !spec.searches() || spec.obstacles.is_empty() || spec.solver.max_iterations == 0 {
         return out;
     }
-    let (px, py) = M::POSITION;
-    let at = |x: &[f64]| {
-        Vector2::new(
-            x.get(px).copied().unwrap_or(f64::NAN),
-            x.get(py).copied().unwrap_or(f64::NAN),
-        )
-    };
-    let (from, to) = (at(&spec.initial_state), at(&spec.goal_state));
+    let (from, to) = (
+        planar(&spec.initial_state, M::POSITION),
+        planar(&spec.goal_state, M::POSITION),
+    );
     // Beyond what an obstacle keeps itself, 5% of the straight path: a
     // hard obstacle with no clearance still gets its via-points off its
     // boundary.
@@ -1043,6 +1031,13 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
             .map(Start::Detour),
     );
     out
+}
+
+/// The position `(px, py)` of the state `x`; NaN where `x` is too short
+/// (a NaN position is on no side and near no obstacle).
+fn planar(x: &[f64], (px, py): (usize, usize)) -> Vector2<f64> {
+    let at = |i: usize| x.get(i).copied().unwrap_or(f64::NAN);
+    Vector2::new(at(px), at(py))
 }
 
 /// How far from its boundary (m) a soft obstacle of weight `q` keeps an

@@ -443,8 +443,9 @@ pub struct SolverSpec {
     /// Search over the ways around the obstacles: besides the plain start
     /// (the model's rest controls, or the given ones), solve from detour
     /// starts that pass each obstacle in the way on the side the plain
-    /// start's answer does not take, and return the best answer (see docs/solver.md, "Searching over routes"; each
-    /// start is listed in the result's `starts`). Default: true, unless
+    /// start's answer does not take, and return the best answer (see
+    /// docs/solver.md, "Searching over routes"; each start is listed in the
+    /// result's `starts`). Default: true, unless
     /// `initial_controls` or `warm_start` is given, when the solve is the
     /// single local solve from them. False: the single local solve from
     /// the plain start, as the paper does it.

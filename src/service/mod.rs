@@ -597,16 +597,13 @@ impl SolveService {
     fn measured(&self, held: Duration, r: &SolveResult, cut_short: bool) {
         // Every start's work, its guide's included: a search's wall time
         // over its chosen start's iterations alone would count several
-        // starts' time as one start's iterations.
+        // starts' time as one start's iterations. (Every result lists at
+        // least its one start; `max` keeps an empty list from dividing by 0.)
         let (busy_ms, steps) = r.starts.iter().fold((0.0, 0.0), |(t, n), s| {
             let iterations = s.iterations + s.guide_iterations.unwrap_or(0);
             (t + s.solve_time_ms, n + iterations as f64 + 1.0)
         });
-        let per_iteration = if r.starts.len() > 1 {
-            busy_ms / 1e3 / steps
-        } else {
-            r.solve_time_ms / 1e3 / (r.iterations as f64 + 1.0)
-        };
+        let per_iteration = busy_ms / 1e3 / f64::max(steps, 1.0);
         let mut averages = self.averages.lock().unwrap_or_else(|p| p.into_inner());
         Averages::update(&mut averages.service, held.as_secs_f64(), cut_short);
         Averages::update(&mut averages.iteration, per_iteration, false);
