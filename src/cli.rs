@@ -12,7 +12,7 @@ use clap::{Parser, Subcommand};
 
 use crate::problem::{Invalid, Limits, ParseError, ProblemSpec, parse};
 use crate::server::{self, Config};
-use crate::solve::{Helper, Helpers, SolveResult, solve_shared};
+use crate::solve::{Budget, Helper, Helpers, SolveResult, solve_shared};
 
 /// Trajectory optimisation with iLQR, served over HTTP and gRPC.
 ///
@@ -334,7 +334,11 @@ fn solve_file(problem: Option<PathBuf>, output: Option<PathBuf>) -> ExitCode {
         cancel: Arc::clone(&signals.cancel),
         lend: &lend,
     };
-    let solved = solve_shared(helpers, spec.time_limit(None), &mut |_| {});
+    let budget = Budget {
+        time_limit: spec.time_limit(None),
+        ..Budget::default()
+    };
+    let solved = solve_shared(helpers, budget, &mut |_| {});
     signals.finishing.store(true, Ordering::SeqCst);
     let result = match solved {
         Ok(r) => r,

@@ -25,8 +25,9 @@ use std::time::{Duration, Instant};
 
 use ilqr::{
     Clearance, Constraint, Constraints, ControlBounds, ControlEffort, Cost, DiscreteDynamics,
-    Euler, ExpObstacle, GoalTolerance, Model, Objective, Options, Problem, Region, Rk4, Shape,
-    ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking, ViaPoint,
+    Euler, ExpObstacle, GoalTolerance, Model, Objective, Options, Problem, Rectangle, Region, Rk4,
+    Shape, ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking,
+    ViaPoint,
     search::{self, Detour},
 };
 use nalgebra::{SVector, Vector2};
@@ -483,8 +484,8 @@ pub struct Helpers<'a> {
 pub struct Call<'a> {
     /// The validated problem.
     pub spec: &'a ProblemSpec,
-    /// The wall-clock budget of the whole solve, every start included.
-    pub time_limit: Option<Duration>,
+    /// The budget of the whole solve, every start included.
+    pub budget: Budget,
     /// Polled with the budget.
     pub cancel: &'a AtomicBool,
     /// Each iteration's trace row, as it ends.
@@ -519,7 +520,10 @@ pub fn solve_observed(
 ) -> Result<SolveResult, Unsolvable> {
     dispatch(Call {
         spec,
-        time_limit,
+        budget: Budget {
+            time_limit,
+            ..Budget::default()
+        },
         cancel,
         progress,
         helpers: None,
@@ -534,18 +538,53 @@ pub fn solve_observed(
 /// it is kept.
 pub fn solve_shared(
     helpers: Helpers<'_>,
-    time_limit: Option<Duration>,
+    budget: Budget,
     progress: &mut dyn FnMut(&TraceEntry),
 ) -> Result<SolveResult, Unsolvable> {
     let spec = Arc::clone(&helpers.spec);
     let cancel = Arc::clone(&helpers.cancel);
     dispatch(Call {
         spec: &spec,
-        time_limit,
+        budget,
         cancel: &cancel,
         progress,
         helpers: Some(helpers),
     })
+}
+
+/// A solve's time budget as its caller sets it.
+#[derive(Clone, Default)]
+pub struct Budget {
+    /// The wall-clock budget of the whole solve, every start included,
+    /// from the call; `None` for none.
+    pub time_limit: Option<Duration>,
+    /// Time the caller needs after the solve per trace row of the answer
+    /// (encoding it): the solve keeps it back from `time_limit` for every
+    /// iteration it does.
+    pub per_row: Duration,
+    /// Whether nobody will read the answer of a cancelled solve (a client
+    /// that left, not a shutdown that still answers): asked when a start
+    /// ends `cancelled`, which then skips its report, closest approaches
+    /// and warnings, to free its thread sooner. `None`: always read.
+    pub unread_if_cancelled: Option<Unread>,
+}
+
+/// See [`Budget::unread_if_cancelled`].
+pub type Unread = Arc<dyn Fn() -> bool + Send + Sync>;
+
+/// What every start of a solve shares: its deadline, what it keeps back
+/// per trace row, and whether a cancelled start's answer is read.
+#[derive(Clone)]
+struct Terms {
+    deadline: Option<Instant>,
+    per_row: Duration,
+    unread: Option<Unread>,
+}
+
+impl Terms {
+    fn unread(&self) -> bool {
+        self.unread.as_ref().is_some_and(|unread| unread())
+    }
 }
 
 fn dispatch(call: Call<'_>) -> Result<SolveResult, Unsolvable> {
@@ -579,6 +618,12 @@ struct Attempt {
 const GUIDE_ITERATIONS: usize = 6;
 /// The guiding solve's relative tolerance, loose for the same reason.
 const GUIDE_TOLERANCE: f64 = 1e-3;
+/// Time kept back from a solve's budget for turning the solver's answer
+/// into a result (the constraint report, closest approaches, warnings,
+/// the rows), in units of one rollout of the problem, which does about as
+/// much work per knot and obstacle: a pass over the trajectory with every
+/// obstacle in it.
+const FINISH_ROLLOUTS: f64 = 2.0;
 /// A start replaces an earlier one only when cheaper by more than this
 /// share of the cost: two starts that reach one optimum differ by about
 /// the solver's tolerance, and the earlier start (the plain one first)
@@ -596,35 +641,40 @@ where
 {
     let Call {
         spec,
-        time_limit,
+        budget,
         cancel,
         progress,
         helpers,
     } = call;
     let started = Instant::now();
-    let deadline = time_limit.and_then(|t| started.checked_add(t));
+    let deadline = budget.time_limit.and_then(|t| started.checked_add(t));
+    let terms = Terms {
+        deadline,
+        per_row: budget.per_row,
+        unread: budget.unread_if_cancelled,
+    };
     let starts = Arc::new(starts::<M, NX, NU>(spec));
     let n = starts.len();
     let ran: Vec<(usize, Attempt)> = if n == 1 {
         vec![(
             0,
-            attempt::<M, NX, NU>(spec, starts[0], deadline, cancel, progress)?,
+            attempt::<M, NX, NU>(spec, starts[0], &terms, cancel, progress)?,
         )]
     } else {
         let here = |i: usize, progress: &mut dyn FnMut(&TraceEntry)| {
-            attempt::<M, NX, NU>(spec, starts[i], deadline, cancel, progress)
+            attempt::<M, NX, NU>(spec, starts[i], &terms, cancel, progress)
         };
         let keep = |plain: &Attempt| kept::<M, NX, NU>(spec, &starts, plain);
         let lent = helpers.map(|h| {
-            let (spec, starts) = (h.spec, Arc::clone(&starts));
+            let (spec, starts, terms) = (h.spec, Arc::clone(&starts), terms.clone());
             let run: Arc<StartFn> = Arc::new(move |i, stop, progress| {
-                attempt::<M, NX, NU>(&spec, starts[i], deadline, stop, progress)
+                attempt::<M, NX, NU>(&spec, starts[i], &terms, stop, progress)
             });
             (h.lend, run)
         });
         // Every start builds the same problem: one that cannot be solved
         // fails them all alike, and the first says why.
-        search(n, &here, &keep, lent, cancel, progress)
+        search(n, &here, &keep, lent, (cancel, deadline), progress)
             .into_iter()
             .map(|(i, outcome)| outcome.map(|a| (i, a)))
             .collect::<Result<_, _>>()?
@@ -690,8 +740,7 @@ pub type Lend<'a> = &'a (dyn Fn(Helper) -> Result<(), Helper> + Sync);
 /// What a start run on another thread reports.
 enum Message {
     Row(usize, TraceEntry),
-    // Boxed: an attempt is a whole result, a row is small and many.
-    Done(usize, Box<Result<Attempt, Unsolvable>>),
+    Done(usize, Ran),
 }
 
 /// How long the plain start runs before idle threads begin detours that
@@ -716,18 +765,23 @@ const SPECULATE_AFTER: Duration = Duration::from_millis(5);
 /// the answer is the same however the starts were spread over threads,
 /// and the waste is idle threads' time while the plain start ran.
 ///
+/// A start begins only while there is time for it ([`Shared::take`]):
+/// before the deadline, and after the decision with at least as long left
+/// as the plain start took. Once one is dropped for time, every later one
+/// is, so the starts run are the first kept ones, in order.
+///
 /// `cancel` (the request's) reaches the starts on other threads through
 /// their stop flags, set by this thread whenever it sees `cancel`: while
 /// it solves, or every [`STOP_POLL`] while it waits.
 ///
-/// Returns the kept starts' outcomes with their indices, in order; only
-/// the plain start's error when it fails.
+/// Returns the outcomes of the kept starts that ran, with their indices,
+/// in order; only the plain start's error when it fails.
 fn search(
     n: usize,
     here: &HereFn<'_>,
     keep: &dyn Fn(&Attempt) -> Vec<bool>,
     lent: Option<(Lend<'_>, Arc<StartFn>)>,
-    cancel: &AtomicBool,
+    (cancel, deadline): (&AtomicBool, Option<Instant>),
     progress: &mut dyn FnMut(&TraceEntry),
 ) -> Vec<(usize, Result<Attempt, Unsolvable>)> {
     let shared = Arc::new(Shared {
@@ -735,6 +789,9 @@ fn search(
         next: AtomicUsize::new(1),
         decided: OnceLock::new(),
         stop: (0..n).map(|_| AtomicBool::new(false)).collect(),
+        deadline,
+        start_by: OnceLock::new(),
+        late: AtomicBool::new(false),
     });
     // However this returns or unwinds, the helpers take no more starts and
     // stop the ones they run: a search left behind wastes nothing.
@@ -760,17 +817,20 @@ fn search(
                 // Between starts: a request waiting for this worker gets it,
                 // and this search's owner runs the rest.
                 while !give_way() {
-                    let i = shared.next.fetch_add(1, Ordering::SeqCst);
-                    if i >= n {
+                    let Some((i, in_time)) = shared.take() else {
                         break;
-                    }
+                    };
                     if shared.decided.get().is_some_and(|kept| !kept[i]) {
                         continue;
                     }
-                    let outcome = run(i, &shared.stop[i], &mut |row| {
-                        let _ = tx.send(Message::Row(i, row.clone()));
-                    });
-                    let _ = tx.send(Message::Done(i, Box::new(outcome)));
+                    let ran = if in_time {
+                        Ran::Finished(Box::new(run(i, &shared.stop[i], &mut |row| {
+                            let _ = tx.send(Message::Row(i, row.clone()));
+                        })))
+                    } else {
+                        Ran::Dropped
+                    };
+                    let _ = tx.send(Message::Done(i, ran));
                 }
             });
             if lend(job).is_err() {
@@ -796,6 +856,12 @@ fn search(
         Ok(plain) => plain,
         Err(e) => return vec![(0, Err(e))],
     };
+    // A detour needs about as long as the plain start took: a short guide,
+    // then a solve like it.
+    let took = began.elapsed();
+    let _ = shared
+        .start_by
+        .set(deadline.map(|d| d.checked_sub(took).unwrap_or(d)));
     let kept = shared.decided.get_or_init(|| keep(&plain)).clone();
     for (i, k) in kept.iter().enumerate() {
         if !k {
@@ -803,19 +869,24 @@ fn search(
         }
     }
     inbox.decide(&kept, progress);
-    inbox.done[0] = Some(Ok(plain));
+    inbox.done[0] = Some(Ran::Finished(Box::new(Ok(plain))));
     // One start left is this thread's: a helper would only make it wait.
     let left = kept.iter().skip(1).filter(|&&k| k).count();
-    lend_helpers(left.saturating_sub(1), &tx);
+    if !shared.too_late() {
+        lend_helpers(left.saturating_sub(1), &tx);
+    }
     drop(tx);
-    loop {
-        let i = shared.next.fetch_add(1, Ordering::SeqCst);
-        if i >= n {
-            break;
-        }
+    while let Some((i, in_time)) = {
+        follow_cancel();
+        shared.take()
+    } {
         let Some(place) = inbox.place(i) else {
             continue;
         };
+        if !in_time {
+            inbox.done[i] = Some(Ran::Dropped);
+            continue;
+        }
         let outcome = here(i, &mut |row| {
             follow_cancel();
             inbox.drain(&rx, progress);
@@ -824,7 +895,7 @@ fn search(
                 ..row.clone()
             });
         });
-        inbox.done[i] = Some(outcome);
+        inbox.done[i] = Some(Ran::Finished(Box::new(outcome)));
     }
     let waiting = |inbox: &Inbox| (0..n).any(|i| kept[i] && inbox.done[i].is_none());
     while waiting(&inbox) {
@@ -838,13 +909,20 @@ fn search(
     }
     (0..n)
         .filter(|&i| kept[i])
-        .map(|i| {
-            let outcome = inbox.done[i]
-                .take()
-                .unwrap_or_else(|| panic!("a start of the search panicked on another thread"));
-            (i, outcome)
+        .filter_map(|i| match inbox.done[i].take() {
+            Some(Ran::Finished(outcome)) => Some((i, *outcome)),
+            Some(Ran::Dropped) => None,
+            None => panic!("a start of the search panicked on another thread"),
         })
         .collect()
+}
+
+/// What became of a start a thread took.
+enum Ran {
+    // Boxed: a whole result, where `Dropped` is nothing.
+    Finished(Box<Result<Attempt, Unsolvable>>),
+    /// Taken when there was no time left to run it.
+    Dropped,
 }
 
 /// How often a search's owner, waiting for starts on other threads, looks
@@ -859,6 +937,12 @@ struct Shared {
     decided: OnceLock<Vec<bool>>,
     /// Each start's stop flag, polled like a cancellation flag.
     stop: Vec<AtomicBool>,
+    /// The solve's deadline.
+    deadline: Option<Instant>,
+    /// Once the plain start has ended: the latest time a detour may begin.
+    start_by: OnceLock<Option<Instant>>,
+    /// A start was found too late to begin: so is every later one.
+    late: AtomicBool,
 }
 
 impl Shared {
@@ -866,6 +950,28 @@ impl Shared {
         for flag in &self.stop {
             flag.store(true, Ordering::SeqCst);
         }
+    }
+
+    /// Whether it is too late to begin a start: the deadline has passed,
+    /// or (once the plain start has ended) the time it took no longer fits.
+    fn too_late(&self) -> bool {
+        let by = self.start_by.get().copied().unwrap_or(self.deadline);
+        by.is_some_and(|by| Instant::now() >= by)
+    }
+
+    /// The next start, and whether to run it: not when it is too late, or
+    /// the start is already stopped (the request was cancelled); `None`
+    /// when none is left. Lateness is sticky and read after the start is
+    /// taken, so a start taken after one found late is late too: the starts
+    /// that run are the first ones, whichever threads took them.
+    fn take(&self) -> Option<(usize, bool)> {
+        if self.too_late() {
+            self.late.store(true, Ordering::SeqCst);
+        }
+        let i = self.next.fetch_add(1, Ordering::SeqCst);
+        let run =
+            |i: usize| !self.late.load(Ordering::SeqCst) && !self.stop[i].load(Ordering::SeqCst);
+        (i < self.stop.len()).then(|| (i, run(i)))
     }
 }
 
@@ -882,7 +988,7 @@ impl Drop for Abandon<'_> {
 
 /// What a search's owner has heard from the threads helping it.
 struct Inbox {
-    done: Vec<Option<Result<Attempt, Unsolvable>>>,
+    done: Vec<Option<Ran>>,
     /// Each start's place among the kept ones (its `start` in the rows),
     /// once the plain start has decided them.
     places: Option<Vec<Option<usize>>>,
@@ -941,7 +1047,7 @@ impl Inbox {
             Message::Row(i, row) => self.forward(i, row, progress),
             Message::Done(i, outcome) => {
                 if self.place(i).is_some() || self.places.is_none() {
-                    self.done[i] = Some(*outcome);
+                    self.done[i] = Some(outcome);
                 }
             }
         }
@@ -1054,7 +1160,7 @@ fn soft_reach(q: f64) -> f64 {
 fn attempt<M, const NX: usize, const NU: usize>(
     spec: &ProblemSpec,
     start: Start,
-    deadline: Option<Instant>,
+    terms: &Terms,
     cancel: &AtomicBool,
     progress: &mut dyn FnMut(&TraceEntry),
 ) -> Result<Attempt, Unsolvable>
@@ -1071,7 +1177,17 @@ where
     let options = Options {
         max_iterations: spec.solver.max_iterations,
         tolerance: spec.solver.tolerance,
-        time_limit: deadline.map(|d| d.saturating_duration_since(Instant::now())),
+        time_limit: terms
+            .deadline
+            .map(|d| d.saturating_duration_since(Instant::now())),
+        reserve_rollouts: FINISH_ROLLOUTS,
+        // Only the result's trace is encoded: rows it leaves out cost
+        // nothing after the solve.
+        reserve_per_iteration: if spec.output.trace {
+            terms.per_row
+        } else {
+            Duration::ZERO
+        },
         // Every term is non-negative (validation keeps weights ≥ 0), so a
         // cost of 0 is a global optimum.
         cost_lower_bound: Some(0.0),
@@ -1099,7 +1215,7 @@ where
         guide,
         x0,
         plain,
-        deadline,
+        terms: terms.clone(),
     };
     let run = (&options, &constraints, cancel, progress);
     let mut attempt = with_solver(horizon, |solver| match spec.integrator {
@@ -1120,7 +1236,7 @@ struct Built<const NX: usize, const NU: usize> {
     x0: SVector<f64, NX>,
     /// The plain initial guess.
     plain: Vec<SVector<f64, NU>>,
-    deadline: Option<Instant>,
+    terms: Terms,
 }
 
 /// The guiding solve (for a detour), then the solve itself, on `solver`.
@@ -1140,10 +1256,14 @@ where
         guide,
         x0,
         plain,
-        deadline,
+        terms,
     } = built;
     let horizon = spec.horizon;
-    let remaining = || deadline.map(|d| d.saturating_duration_since(Instant::now()));
+    let remaining = || {
+        terms
+            .deadline
+            .map(|d| d.saturating_duration_since(Instant::now()))
+    };
     let mut guide_iterations = None;
     let mut u_init = plain;
     if let Some(guide) = guide {
@@ -1156,7 +1276,9 @@ where
         let guiding = Options {
             max_iterations: GUIDE_ITERATIONS,
             tolerance: GUIDE_TOLERANCE,
-            time_limit: remaining(),
+            // Half of what is left at most: the solve itself needs the rest.
+            time_limit: remaining().map(|t| t / 2),
+            reserve_rollouts: FINISH_ROLLOUTS,
             cost_lower_bound: Some(0.0),
             ..Options::default()
         };
@@ -1189,8 +1311,7 @@ where
     let result = solve_on::<M, _, _, NX, NU>(
         solver,
         spec,
-        &problem,
-        &u_init,
+        (&problem, &u_init, &terms),
         (&options, constraints, cancel, progress),
     )?;
     Ok(Attempt {
@@ -1301,10 +1422,10 @@ fn region(o: &Obstacle) -> Region {
         ObstacleShape::Circle => Shape::Circle {
             radius: o.radius.unwrap_or(0.0),
         },
-        ObstacleShape::Rectangle => Shape::Rectangle {
-            size: Vector2::from(o.size.unwrap_or([0.0, 0.0])),
-            angle: o.angle.unwrap_or(0.0),
-        },
+        ObstacleShape::Rectangle => Shape::Rectangle(Rectangle::new(
+            Vector2::from(o.size.unwrap_or([0.0, 0.0])),
+            o.angle.unwrap_or(0.0),
+        )),
     };
     Region {
         center: Vector2::from(o.center),
@@ -1454,8 +1575,7 @@ type Run<'a, 'p, const NX: usize, const NU: usize> = (
 fn solve_on<M, D, C, const NX: usize, const NU: usize>(
     solver: &mut Solver<NX, NU>,
     spec: &ProblemSpec,
-    problem: &Problem<D, C, NX>,
-    u_init: &[SVector<f64, NU>],
+    (problem, u_init, terms): (&Problem<D, C, NX>, &[SVector<f64, NU>], &Terms),
     (options, constraints, cancel, progress): Run<'_, '_, NX, NU>,
 ) -> Result<SolveResult, Unsolvable>
 where
@@ -1468,6 +1588,10 @@ where
             progress(&trace_entry(row));
         })
         .map_err(|e| Unsolvable(field_error(e, spec)))?;
+    // Nobody reads it: the status and cost are enough to rank it, and the
+    // passes over every obstacle that make the rest would only hold this
+    // thread longer.
+    let read = !(summary.status == ilqr::Status::Cancelled && terms.unread());
 
     let states = Rows::from_rows(NX, solver.states().iter());
     let (px, py) = M::POSITION;
@@ -1477,18 +1601,22 @@ where
     let closest_approach = spec
         .obstacles
         .iter()
+        .filter(|_| read)
         .map(|o| closest_approach(&states, M::POSITION, o.center))
         .collect();
     // Zero gains from a solve whose first backward pass never completed
     // would read as a valid (open-loop) policy; leave them out instead.
-    let gains = (spec.output.gains && summary.has_gains).then(|| wire_gains(solver, &summary));
-    let trace = spec
-        .output
-        .trace
-        .then(|| solver.trace().iter().map(trace_entry).collect());
-    let report = (!constraints.is_empty())
+    let gains =
+        (read && spec.output.gains && summary.has_gains).then(|| wire_gains(solver, &summary));
+    let trace =
+        (read && spec.output.trace).then(|| solver.trace().iter().map(trace_entry).collect());
+    let report = (read && !constraints.is_empty())
         .then(|| constraint_report(spec, constraints, solver, summary.outer_iterations));
-    let warnings = warnings::<M, NX, NU>(spec, solver, goal_distance);
+    let warnings = if read {
+        warnings::<M, NX, NU>(spec, solver, goal_distance)
+    } else {
+        Vec::new()
+    };
     Ok(SolveResult {
         model: M::NAME.to_owned(),
         integrator: spec.integrator,
@@ -1856,6 +1984,23 @@ impl SolveResult {
     /// The result as compact JSON, in a buffer sized for it up front (a
     /// seed result is 16–50 kB; growing a small buffer by doubling copies
     /// it several times).
+    /// The numbers the answer holds: states, controls, gains, trace rows
+    /// and the per-obstacle and per-start entries (what its encoding's
+    /// time grows with).
+    pub fn numbers(&self) -> usize {
+        let rows = |r: &Rows| r.len() * r.width;
+        let gains = self.gains.as_ref().map_or(0, |g| {
+            g.feedback.iter().map(rows).sum::<usize>() + rows(&g.feedforward)
+        });
+        let trace = self.trace.as_ref().map_or(0, |t| t.len() * 14);
+        rows(&self.states)
+            + rows(&self.controls)
+            + gains
+            + trace
+            + self.closest_approach.len()
+            + 10 * self.starts.len()
+    }
+
     pub fn to_json(&self) -> serde_json::Result<Vec<u8>> {
         // ~20 bytes per number on the wire; 24 leaves room without waste.
         let numbers = self.states.flat().len()

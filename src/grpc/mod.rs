@@ -66,7 +66,9 @@ use tracing::Instrument;
 
 use crate::models::{self, ModelList};
 use crate::problem::{Limits, ProblemSpec};
-use crate::service::{SolveError, SolveRequest, SolveService, Transport, count_rejection};
+use crate::service::{
+    Encoding, SolveError, SolveRequest, SolveService, Transport, count_rejection,
+};
 use convert::Flat;
 use proto::trajectory_optimizer_server::{TrajectoryOptimizer, TrajectoryOptimizerServer};
 
@@ -227,7 +229,7 @@ impl Optimizer {
         metadata: &tonic::metadata::MetadataMap,
         arrived: Instant,
     ) -> SolveRequest {
-        let request = SolveRequest::new(spec, Transport::Grpc);
+        let request = SolveRequest::new(spec, Transport::Grpc).encoding(Encoding::Protobuf);
         match status::budget_end(metadata, arrived) {
             Some(end) => request.deadline(end),
             None => request,

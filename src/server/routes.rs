@@ -24,7 +24,7 @@ use super::error::{ApiError, LoggedProblem, Overload, Problem};
 use super::{AppState, metrics};
 use crate::problem::wire::{ProblemDoc, WeightsDoc};
 use crate::problem::{OutputSpec, ParseError, ProblemSpec, SolverSpec, clip, parse};
-use crate::service::{SolveRequest, Transport, count_rejection};
+use crate::service::{Encoding, SolveRequest, Transport, count_rejection};
 use crate::solve::SolveResult;
 
 /// The OpenAPI document's fixed parts; paths come from the router.
@@ -702,11 +702,16 @@ async fn solve(
     // now could be sent, so the service refuses before spending a solve.
     let answers = Arc::clone(&st.answers);
     let request = SolveRequest::new(spec, Transport::Http)
+        .encoding(if gzip.is_some() {
+            Encoding::JsonGzip
+        } else {
+            Encoding::Json
+        })
         .refuse_if("answer_budget", move || answers.is_full());
     // Serialised and compressed on the worker: a long horizon's result is
-    // megabytes of JSON, CPU work the async runtime should not do. It comes
-    // after the budget (tens of ms at N = 10000, see docs/limits.md);
-    // Server-Timing reports it.
+    // megabytes of JSON, CPU work the async runtime should not do. The
+    // service keeps its time back from the budget; Server-Timing reports
+    // it.
     let solved = st
         .service
         .solve(request, move |r| Ok(encode(r.to_json()?, gzip)))

@@ -87,7 +87,7 @@ use tokio::sync::Notify;
 
 use crate::problem::{Invalid, Limits, ProblemSpec};
 use crate::solve::{
-    Helpers, SolveResult, SolveStatus, TraceEntry, Unsolvable, millis, solve_shared,
+    Budget, Helpers, SolveResult, SolveStatus, TraceEntry, Unsolvable, millis, solve_shared,
 };
 use pool::{Estimate, Pool, Refusal, Ticket, Timing};
 
@@ -114,6 +114,37 @@ impl Transport {
     }
 }
 
+/// How a transport encodes an answer, for the time the service keeps back
+/// from the budget to encode it ([`SolveRequest::encoding`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Encoding {
+    /// JSON text (`/solve`, the result event of `/solve/stream`).
+    Json,
+    /// JSON, then gzip.
+    JsonGzip,
+    /// A protobuf message (gRPC; the bytes are written by the runtime).
+    Protobuf,
+}
+
+impl Encoding {
+    /// Seconds per number of the answer before any was measured: about
+    /// twice what one took on the benchmark machine (BENCHMARKS.md).
+    fn first_guess(self) -> f64 {
+        match self {
+            Self::Json => 50e-9,
+            Self::JsonGzip => 500e-9,
+            Self::Protobuf => 10e-9,
+        }
+    }
+}
+
+/// The share of the encoding's measured time kept back on top of it, for
+/// its spread on a busy machine.
+const ENCODE_MARGIN: f64 = 1.5;
+
+/// Numbers in one trace row of an answer.
+const TRACE_ROW_NUMBERS: usize = 14;
+
 /// How the service is set up.
 #[derive(Debug, Clone)]
 pub struct Settings {
@@ -138,12 +169,14 @@ struct Job<'a> {
     timing: Timing,
     cancel: &'a Arc<AtomicBool>,
     transport: Transport,
+    encoding: Encoding,
 }
 
 /// A problem to solve and how it came.
 pub struct SolveRequest {
     spec: ProblemSpec,
     transport: Transport,
+    encoding: Encoding,
     deadline: Option<Instant>,
     busy: Option<(&'static str, BusyCheck)>,
     progress: Option<Progress>,
@@ -164,10 +197,19 @@ impl SolveRequest {
         Self {
             spec,
             transport,
+            encoding: Encoding::Json,
             deadline: None,
             busy: None,
             progress: None,
         }
+    }
+
+    /// How the answer will be encoded (JSON by default): the service
+    /// keeps the encoding's time back from the budget, so that the
+    /// encoded answer, not only the result, is ready by the deadline.
+    pub fn encoding(mut self, encoding: Encoding) -> Self {
+        self.encoding = encoding;
+        self
     }
 
     /// Report each iteration's trace row to `progress` as the solve runs
@@ -296,13 +338,16 @@ fn rejected(transport: Transport, e: SolveError) -> SolveError {
     e
 }
 
-/// The moving averages of the module's "Expected wait".
+/// The moving averages of the module's "Expected wait", and of the
+/// encoding's time per number of an answer, by [`Encoding`].
 #[derive(Debug, Default)]
 struct Averages {
     /// Worker time per solve, in s.
     service: Option<f64>,
     /// Time per iteration, in s.
     iteration: Option<f64>,
+    /// Encoding time per number, in s.
+    encode: [Option<f64>; 3],
 }
 
 impl Averages {
@@ -320,7 +365,7 @@ pub struct SolveService {
     settings: Settings,
     pool: Pool,
     averages: Mutex<Averages>,
-    draining: AtomicBool,
+    draining: Arc<AtomicBool>,
     /// Cancellation flags of admitted solves, by admission number.
     inflight: Mutex<HashMap<u64, Arc<AtomicBool>>>,
     next_id: AtomicU64,
@@ -349,7 +394,7 @@ impl SolveService {
             settings,
             pool,
             averages: Mutex::new(Averages::default()),
-            draining: AtomicBool::new(false),
+            draining: Arc::new(AtomicBool::new(false)),
             inflight: Mutex::new(HashMap::new()),
             next_id: AtomicU64::new(0),
             finished: Notify::new(),
@@ -385,6 +430,7 @@ impl SolveService {
         let SolveRequest {
             spec,
             transport,
+            encoding,
             deadline: theirs,
             busy,
             progress,
@@ -414,8 +460,9 @@ impl SolveService {
         };
         let budget = deadline.map(|d| d.saturating_duration_since(admitted));
         let (estimate, per_iteration) = self.estimates();
+        let (encoding_time, _) = self.encode_reserve(&spec, encoding);
         let least_run = match (budget, per_iteration) {
-            (Some(b), Some(i)) => (2 * i).min(b / 2),
+            (Some(b), Some(i)) => (2 * i + encoding_time).min(b / 2),
             _ => Duration::ZERO,
         };
         let timing = Timing {
@@ -438,6 +485,7 @@ impl SolveService {
                     timing,
                     cancel: &cancel,
                     transport,
+                    encoding,
                 };
                 service.run(job, progress, encode)
             })
@@ -490,6 +538,32 @@ impl SolveService {
         )
     }
 
+    /// The time to keep back from `spec`'s budget for encoding its answer
+    /// with `encoding`: for what every answer holds (states, controls,
+    /// gains), and for each trace row.
+    fn encode_reserve(&self, spec: &ProblemSpec, encoding: Encoding) -> (Duration, Duration) {
+        let per_number = {
+            let averages = self.averages.lock().unwrap_or_else(|p| p.into_inner());
+            averages.encode[encoding as usize].unwrap_or_else(|| encoding.first_guess())
+        } * ENCODE_MARGIN;
+        let (nx, nu) = spec
+            .model
+            .served()
+            .map_or((0, 0), |m| (m.state().len(), m.control().len()));
+        let n = spec.horizon;
+        let gains = if spec.output.gains {
+            n * nu * (nx + 1)
+        } else {
+            0
+        };
+        let numbers = (n + 1) * nx + n * nu + gains + 10 * spec.obstacles.len();
+        let secs = |numbers: usize| Duration::try_from_secs_f64(numbers as f64 * per_number);
+        (
+            secs(numbers).unwrap_or(Duration::ZERO),
+            secs(TRACE_ROW_NUMBERS).unwrap_or(Duration::ZERO),
+        )
+    }
+
     /// The measured time a solve holds a worker, if any solve has ended.
     pub fn service_time(&self) -> Option<Duration> {
         self.estimates().0.map(|e| e.service)
@@ -508,6 +582,7 @@ impl SolveService {
             timing,
             cancel,
             transport,
+            encoding,
         } = job;
         // Cancelled by a shutdown before a worker took it. Nothing was
         // computed, so the answer says to retry elsewhere rather than
@@ -521,9 +596,19 @@ impl SolveService {
         if timing.start_by.is_some_and(|by| started > by) {
             return Outcome::Expired;
         }
-        let remaining = timing
-            .deadline
-            .map(|d| d.saturating_duration_since(started));
+        // The answer is due encoded: its encoding's time is kept back.
+        let (encoding_time, per_row) = self.encode_reserve(spec, encoding);
+        // A cancelled solve is answered only while draining; otherwise its
+        // caller has left.
+        let draining = Arc::clone(&self.draining);
+        let budget = Budget {
+            time_limit: timing.deadline.map(|d| {
+                d.saturating_duration_since(started)
+                    .saturating_sub(encoding_time)
+            }),
+            per_row,
+            unread_if_cancelled: Some(Arc::new(move || !draining.load(Ordering::SeqCst))),
+        };
         let mut report = |row: &TraceEntry| {
             if let Some(progress) = &mut progress {
                 progress(row);
@@ -538,7 +623,7 @@ impl SolveService {
             cancel: Arc::clone(cancel),
             lend: &lend,
         };
-        let mut r = match solve_shared(helpers, remaining, &mut report) {
+        let mut r = match solve_shared(helpers, budget, &mut report) {
             Ok(r) => r,
             Err(e) => return Outcome::Unsolvable(e),
         };
@@ -575,10 +660,12 @@ impl SolveService {
             self.measured(started.elapsed(), &r, true);
             return Outcome::Left;
         }
-        let encoding = Instant::now();
+        let encoding_began = Instant::now();
         let answer = encode(&r);
-        let encode_ms = millis(encoding.elapsed());
+        let encoded = encoding_began.elapsed();
+        let encode_ms = millis(encoded);
         self.measured(started.elapsed(), &r, cut_short);
+        self.encoded(encoding, encoded, &r);
         match answer {
             Ok(answer) => Outcome::Answer(Solved {
                 answer,
@@ -607,6 +694,17 @@ impl SolveService {
         let mut averages = self.averages.lock().unwrap_or_else(|p| p.into_inner());
         Averages::update(&mut averages.service, held.as_secs_f64(), cut_short);
         Averages::update(&mut averages.iteration, per_iteration, false);
+    }
+
+    /// Fold an encoding of `r` that took `took` into the averages.
+    fn encoded(&self, encoding: Encoding, took: Duration, r: &SolveResult) {
+        let numbers = r.numbers();
+        if numbers == 0 {
+            return;
+        }
+        let mut averages = self.averages.lock().unwrap_or_else(|p| p.into_inner());
+        let sample = took.as_secs_f64() / numbers as f64;
+        Averages::update(&mut averages.encode[encoding as usize], sample, false);
     }
 
     /// Whether the service admits solves (not draining).

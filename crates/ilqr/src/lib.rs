@@ -87,8 +87,8 @@ pub mod unicycle;
 
 pub use boxqp::{BoxQpError, BoxQpOptions, BoxQpSolution, BoxQpStatus, solve_box_qp};
 pub use constraint::{
-    Clearance, Constraint, Constraints, ControlBounds, Distance, GoalTolerance, Knot, Region,
-    Shape, StateBounds,
+    Clearance, Constraint, Constraints, ControlBounds, Distance, GoalTolerance, Knot, Rectangle,
+    Region, Shape, StateBounds,
 };
 pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, ShapeObstacle, StageCost, StageExpansion,

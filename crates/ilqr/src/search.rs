@@ -150,9 +150,8 @@ fn extent(shape: &Shape, n: &Vector2<f64>) -> f64 {
     match *shape {
         Shape::Point => 0.0,
         Shape::Circle { radius } => radius,
-        Shape::Rectangle { size, angle } => {
-            let (s, c) = angle.sin_cos();
-            let (a, b) = (Vector2::new(c, s), Vector2::new(-s, c));
+        Shape::Rectangle(r) => {
+            let ((a, b), size) = (r.axes(), r.size());
             n.dot(&a).abs() * size.x / 2.0 + n.dot(&b).abs() * size.y / 2.0
         }
     }
@@ -187,6 +186,7 @@ fn segment_distance(region: &Region, a: Vector2<f64>, b: Vector2<f64>) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::constraint::Rectangle;
 
     fn circle(x: f64, y: f64, radius: f64, margin: f64) -> Obstacle {
         Obstacle {
@@ -253,10 +253,10 @@ mod tests {
         let o = Obstacle {
             region: Region {
                 center: Vector2::new(5.0, 0.0),
-                shape: Shape::Rectangle {
-                    size: Vector2::new(2.0, 4.0),
-                    angle: std::f64::consts::FRAC_PI_2,
-                },
+                shape: Shape::Rectangle(Rectangle::new(
+                    Vector2::new(2.0, 4.0),
+                    std::f64::consts::FRAC_PI_2,
+                )),
             },
             margin: 0.5,
         };

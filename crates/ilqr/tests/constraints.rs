@@ -8,8 +8,8 @@ use std::sync::atomic::AtomicBool;
 
 use ilqr::{
     Clearance, Constraint, Constraints, ControlBounds, DiscreteDynamics, GoalTolerance, Knot,
-    Options, Region, Shape, ShapeObstacle, Solver, StageCost, StageExpansion, StateBounds, Status,
-    ViaPoint,
+    Options, Rectangle, Region, Shape, ShapeObstacle, Solver, StageCost, StageExpansion,
+    StateBounds, Status, ViaPoint,
 };
 use nalgebra::{SVector, Vector2};
 
@@ -28,24 +28,15 @@ fn regions() -> Vec<Region> {
         },
         Region {
             center: c,
-            shape: Shape::Rectangle {
-                size: Vector2::new(1.0, 2.0),
-                angle: 0.0,
-            },
+            shape: Shape::Rectangle(Rectangle::new(Vector2::new(1.0, 2.0), 0.0)),
         },
         Region {
             center: c,
-            shape: Shape::Rectangle {
-                size: Vector2::new(1.0, 2.0),
-                angle: 0.3,
-            },
+            shape: Shape::Rectangle(Rectangle::new(Vector2::new(1.0, 2.0), 0.3)),
         },
         Region {
             center: c,
-            shape: Shape::Rectangle {
-                size: Vector2::new(3.0, 0.5),
-                angle: -2.1,
-            },
+            shape: Shape::Rectangle(Rectangle::new(Vector2::new(3.0, 0.5), -2.1)),
         },
     ]
 }
@@ -101,10 +92,7 @@ fn signed_distance_gradient_and_curvature_match_finite_differences() {
 fn signed_distance_is_negative_inside_and_known_at_known_points() {
     let rect = Region {
         center: Vector2::new(7.0, 6.0),
-        shape: Shape::Rectangle {
-            size: Vector2::new(1.0, 2.0),
-            angle: 0.0,
-        },
+        shape: Shape::Rectangle(Rectangle::new(Vector2::new(1.0, 2.0), 0.0)),
     };
     let at = |x: f64, y: f64| rect.distance(&Vector2::new(x, y)).value;
     assert!((at(7.0, 6.0) + 0.5).abs() < 1e-15);
@@ -114,10 +102,10 @@ fn signed_distance_is_negative_inside_and_known_at_known_points() {
     // Turned a quarter turn, width and height swap.
     let turned = Region {
         center: Vector2::new(7.0, 6.0),
-        shape: Shape::Rectangle {
-            size: Vector2::new(1.0, 2.0),
-            angle: std::f64::consts::FRAC_PI_2,
-        },
+        shape: Shape::Rectangle(Rectangle::new(
+            Vector2::new(1.0, 2.0),
+            std::f64::consts::FRAC_PI_2,
+        )),
     };
     assert!((turned.distance(&Vector2::new(9.0, 6.0)).value - 1.0).abs() < 1e-12);
     let circle = Region {

@@ -12,9 +12,11 @@
 //! multiplier takes the gradient's factor, `λ ← max(0, λ + ρc)`, and ρ
 //! grows.
 
+use std::sync::atomic::{AtomicU64, Ordering};
+
 use nalgebra::SVector;
 
-use crate::constraint::{Constraints, Knot};
+use crate::constraint::{Constraints, Knot, violation};
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 
 /// Largest multiplier: keeps a constraint that cannot be met from driving
@@ -31,6 +33,27 @@ pub(super) struct Augmented<'a, C, const NX: usize, const NU: usize> {
     pub(super) m: usize,
     pub(super) n: usize,
     pub(super) rho: f64,
+    /// The largest violation of the last rollout under this cost, as
+    /// [`Constraints::violation`] counts it: each rollout's penalty terms
+    /// evaluate every constraint anyway, so the trace's violation needs no
+    /// pass of its own. Reset at stage 0, where every rollout begins;
+    /// complete once its terminal state is costed. (An atomic only because
+    /// a cost must be `Sync`; one thread uses it.)
+    pub(super) worst: Worst,
+}
+
+/// An `f64` kept as its bits (see [`Augmented::worst`]).
+#[derive(Debug, Default)]
+pub(super) struct Worst(AtomicU64);
+
+impl Worst {
+    pub(super) fn get(&self) -> f64 {
+        f64::from_bits(self.0.load(Ordering::Relaxed))
+    }
+
+    fn set(&self, v: f64) {
+        self.0.store(v.to_bits(), Ordering::Relaxed);
+    }
 }
 
 /// `λ + ρc`, cut at 0 for an inequality: the multiplier the update gives,
@@ -68,15 +91,18 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
 
     fn penalty(&self, knot: Knot, x: &SVector<f64, NX>, u: &SVector<f64, NU>) -> f64 {
         let mut total = 0.0;
+        let mut worst = if knot == Knot::Stage(0) {
+            0.0
+        } else {
+            self.worst.get()
+        };
         self.components(knot, |at, c, i| {
-            let s = shifted(
-                self.lambda[at],
-                self.rho,
-                c.value(i, x, u),
-                c.is_equality(i),
-            );
+            let (value, equality) = (c.value(i, x, u), c.is_equality(i));
+            worst = worst.max(violation(value, equality));
+            let s = shifted(self.lambda[at], self.rho, value, equality);
             total += s * s / (2.0 * self.rho);
         });
+        self.worst.set(worst);
         total
     }
 

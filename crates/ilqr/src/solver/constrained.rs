@@ -26,14 +26,16 @@
 //!
 //! The returned cost is the base cost, without penalties.
 
+use std::cell::Cell;
 use std::sync::atomic::AtomicBool;
 use std::time::Instant;
 
 use nalgebra::SVector;
 
-use super::passes::rollout;
+use super::augmented::Worst;
+use super::passes::{polled_rollout, rollout};
 use super::state::LoopState;
-use super::{Augmented, Options, Problem, SolveError, Solver, Status, Summary, TraceRow};
+use super::{Augmented, Clock, Options, Problem, SolveError, Solver, Status, Summary, TraceRow};
 use crate::constraint::Constraints;
 use crate::cost::Cost;
 use crate::dynamics::DiscreteDynamics;
@@ -53,6 +55,13 @@ const PROJECTION_STEPS: usize = 8;
 /// N·NU): 16 MB. Beyond it the solve goes without the projection.
 const PROJECTION_ENTRIES: usize = 2_000_000;
 
+/// The most multiplications of the projection's `GGᵀ` (rows² × N·NU):
+/// about 0.1 s. Beyond it the solve goes without the projection.
+const PROJECTION_PRODUCTS: usize = 200_000_000;
+
+/// Rows of the projection's system between two polls of the budget.
+const PROJECTION_POLL_ROWS: usize = 16;
+
 /// How a projection ended.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 enum Projection {
@@ -64,6 +73,11 @@ enum Projection {
     /// Nothing changed.
     Unchanged,
 }
+
+/// Rollouts of time kept back from the budget for the solve's wrap-up
+/// after its loop: the base cost's rollout and a pass over the
+/// constraints.
+const WRAP_UP_ROLLOUTS: f64 = 2.0;
 
 /// The most iterations of one inner solve: one that needs more goes on
 /// as the next outer iteration, at updated multipliers. An infeasible
@@ -113,7 +127,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let n = problem.horizon;
         let m = constraints.components();
         self.bounds = constraints.control;
-        let initial_cost = self.prepare(problem, &problem.cost, u_init, options)?;
+        let clock = Clock::new(start, WRAP_UP_ROLLOUTS, options);
+        let initial_cost = self.prepare(problem, &problem.cost, u_init, options, &clock)?;
         // The rest of what the outer loop needs, before it.
         for v in [&mut self.lambda, &mut self.lambda_next] {
             v.clear();
@@ -126,7 +141,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let loose = options.tolerance.max(options.intermediate_tolerance);
         let tolerance = options.constraint_tolerance;
 
-        let interrupted = super::interruption(cancel, options, start);
+        let interrupted = super::interruption(cancel, options, &clock);
         let dynamics = &problem.dynamics;
         let mut rho = options.penalty_initial;
         // Control bounds alone need no outer loop: one tight solve.
@@ -136,6 +151,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut carried_mu: Option<f64> = None;
         let mut previous = f64::INFINITY;
         let mut best = (f64::INFINITY, 0usize);
+        // The gains in the workspace, carried from one inner solve to the
+        // next: about the same trajectory, until a step moves it.
+        let mut gains = None;
         let mut last_summary;
         let status = loop {
             outer += 1;
@@ -147,13 +165,27 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 m,
                 n,
                 rho,
+                worst: Worst::default(),
             };
-            // The iterate's cost under this outer iteration's multipliers.
+            // The iterate's cost under this outer iteration's multipliers
+            // (it evaluates every constraint, so it is timed for the
+            // budget's reserve), and its violation.
+            let began = Instant::now();
             let mut xs = std::mem::take(&mut self.xs);
-            let cost = rollout(dynamics, &augmented, &mut xs, &self.us[..n]);
+            let rolled = polled_rollout(dynamics, &augmented, &mut xs, &self.us[..n], &interrupted);
             self.xs = xs;
-            let mut state = LoopState::new(options, cost);
+            let mut state = LoopState::new(options, *rolled.as_ref().unwrap_or(&f64::NAN));
             state.iterations = iterations;
+            if let Some(gains) = gains {
+                state.gains = gains;
+            }
+            if let Err(status) = rolled {
+                last_summary = state.summary(status, start.elapsed());
+                self.lambda = lambda;
+                break status;
+            }
+            clock.rolled_out(began);
+            let nominal = Cell::new(augmented.worst.get());
             if let Some(mu) = carried_mu {
                 state.mu = mu;
             }
@@ -168,22 +200,30 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     .max_iterations
                     .min(iterations.saturating_add(INNER_ITERATIONS));
             }
-            let annotate = |s: &Self, row: &mut TraceRow| {
+            let annotate = |_: &Self, row: &mut TraceRow| {
                 row.outer_iteration = outer;
                 row.penalty = rho;
-                row.constraint_violation = constraints.violation(&s.xs, &s.us);
+                // An accepted step's rollout was the line search's last.
+                if row.step_size > 0.0 {
+                    nominal.set(augmented.worst.get());
+                }
+                row.constraint_violation = nominal.get();
             };
             let inner = self.iterate(
                 dynamics,
                 &augmented,
                 options,
                 &mut state,
-                (start, &interrupted),
+                (&clock, &interrupted),
                 (&mut *observe, &annotate),
             );
             iterations = state.iterations;
+            gains = Some(state.gains);
             carried_mu = Some(state.mu.clamp(MU_FLOOR, options.mu_init.max(MU_FLOOR)));
-            let violation = constraints.violation(&self.xs, &self.us);
+            // The nominal trajectory's, as its last accepted rollout found
+            // it: a pass over the constraints of its own would cost as
+            // much as a rollout.
+            let violation = nominal.get();
             if violation < best.0 {
                 best = (violation, outer);
                 self.best_xs.copy_from_slice(&self.xs);
@@ -324,7 +364,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let n = self.us.len();
         let mut violation = constraints.violation(&self.xs, &self.us);
         let mut moved = false;
-        for _ in 0..PROJECTION_STEPS {
+        'steps: for _ in 0..PROJECTION_STEPS {
             if violation <= 0.1 * tolerance || interrupted().is_some() {
                 break;
             }
@@ -351,8 +391,13 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                     }
                 }
             }
-            // Its system is dense: rows × N·NU entries.
-            if rows.is_empty() || rows.len() * n * NU > PROJECTION_ENTRIES {
+            // Its system is dense: rows × N·NU entries, and rows² × N·NU
+            // multiplications to form GGᵀ.
+            let entries = rows.len() * n * NU;
+            if rows.is_empty()
+                || entries > PROJECTION_ENTRIES
+                || entries.saturating_mul(rows.len()) > PROJECTION_PRODUCTS
+            {
                 break;
             }
             // A control at a bound stays there: its columns are zero.
@@ -365,6 +410,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             let mut G = DMatrix::<f64>::zeros(rows.len(), n * NU);
             let mut c = DVector::<f64>::zeros(rows.len());
             for (r, (k, value, c_x, c_u)) in rows.iter().enumerate() {
+                // Each row sweeps back over up to N knots.
+                if r % PROJECTION_POLL_ROWS == 0 && interrupted().is_some() {
+                    break 'steps;
+                }
                 c[r] = *value;
                 if *k < n {
                     for j in 0..NU {
@@ -391,7 +440,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // δu = −Gᵀ(GGᵀ)⁻¹c, the least-norm step, lightly regularised
             // for rows that coincide (the same bound at both ends of a
             // step).
-            let mut GGt = &G * G.transpose();
+            let mut GGt = DMatrix::<f64>::zeros(rows.len(), rows.len());
+            for r0 in (0..rows.len()).step_by(PROJECTION_POLL_ROWS) {
+                if interrupted().is_some() {
+                    break 'steps;
+                }
+                let len = PROJECTION_POLL_ROWS.min(rows.len() - r0);
+                GGt.rows_mut(r0, len)
+                    .copy_from(&(G.rows(r0, len) * G.transpose()));
+            }
             for r in 0..rows.len() {
                 GGt[(r, r)] += 1e-12 * (1.0 + GGt[(r, r)]);
             }

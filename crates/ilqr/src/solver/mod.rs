@@ -72,6 +72,7 @@ mod report;
 mod riccati;
 mod state;
 
+use std::cell::Cell;
 use std::sync::atomic::{AtomicBool, Ordering};
 use std::time::{Duration, Instant};
 
@@ -202,22 +203,64 @@ struct LineSearch {
 }
 
 /// How the solve must end now, if it must: `Cancelled` when `cancel` is
-/// set, else `TimeLimit` when the budget counted from `start` is spent.
-/// Polled once per iteration, between the rollouts of a line search and
-/// inside every pass.
+/// set, else `TimeLimit` when the budget counted from `start`, less what
+/// `clock` keeps back, is spent. Polled once per iteration, between the
+/// rollouts of a line search and inside every pass.
 fn interruption<'a>(
     cancel: &'a AtomicBool,
     options: &'a Options,
-    start: Instant,
+    clock: &'a Clock,
 ) -> impl Fn() -> Option<Status> + 'a {
     move || {
         if cancel.load(Ordering::Relaxed) {
             Some(Status::Cancelled)
-        } else if options.time_limit.is_some_and(|t| start.elapsed() >= t) {
+        } else if options
+            .time_limit
+            .is_some_and(|t| clock.start.elapsed() + clock.reserve() >= t)
+        {
             Some(Status::TimeLimit)
         } else {
             None
         }
+    }
+}
+
+/// A solve's start, and what it keeps back from the budget: rollouts
+/// ([`Options::reserve_rollouts`], and a constrained solve's own wrap-up)
+/// at the time its slowest one took, and a share per trace row
+/// ([`Options::reserve_per_iteration`]).
+struct Clock {
+    start: Instant,
+    rollout: Cell<Duration>,
+    /// Rollouts kept back.
+    rollouts: f64,
+    per_row: Duration,
+    rows: Cell<u32>,
+}
+
+impl Clock {
+    fn new(start: Instant, rollouts: f64, options: &Options) -> Self {
+        Self {
+            start,
+            rollout: Cell::new(Duration::ZERO),
+            rollouts: options.reserve_rollouts.max(0.0) + rollouts,
+            per_row: options.reserve_per_iteration,
+            rows: Cell::new(0),
+        }
+    }
+
+    /// Count a trace row.
+    fn row(&self) {
+        self.rows.set(self.rows.get().saturating_add(1));
+    }
+
+    /// Record a rollout that began at `began` and has just ended.
+    fn rolled_out(&self, began: Instant) {
+        self.rollout.set(self.rollout.get().max(began.elapsed()));
+    }
+
+    fn reserve(&self) -> Duration {
+        self.rollout.get().mul_f64(self.rollouts) + self.per_row * self.rows.get()
     }
 }
 
@@ -344,9 +387,10 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     {
         let start = Instant::now();
         self.bounds = None;
-        let cost = self.prepare(problem, &problem.cost, u_init, options)?;
+        let clock = Clock::new(start, 0.0, options);
+        let cost = self.prepare(problem, &problem.cost, u_init, options, &clock)?;
 
-        let interrupted = interruption(cancel, options, start);
+        let interrupted = interruption(cancel, options, &clock);
         let mut state = LoopState::new(options, cost);
         let (dynamics, cost) = (&problem.dynamics, &problem.cost);
         let status = self.iterate(
@@ -354,7 +398,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             cost,
             options,
             &mut state,
-            (start, &interrupted),
+            (&clock, &interrupted),
             (observe, &|_, _| {}),
         );
         self.least_regularized_gains(dynamics, cost, options, status, &mut state, &interrupted);
@@ -364,13 +408,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// Everything before the loop, where all allocation happens: checks
     /// the input, sizes the buffers for `problem.horizon`, loads `u_init`
     /// (clamped into the control bounds, if any) and rolls it out under
-    /// `cost`; returns the initial cost.
+    /// `cost`, timing the rollout on `clock`; returns the initial cost.
     fn prepare<D, C, C2>(
         &mut self,
         problem: &Problem<D, C, NX>,
         cost: &C2,
         u_init: &[SVector<f64, NU>],
         options: &Options,
+        clock: &Clock,
     ) -> Result<f64, SolveError>
     where
         D: DiscreteDynamics<NX, NU>,
@@ -406,7 +451,9 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 *u = b.clamp(u);
             }
         }
+        let began = Instant::now();
         let cost = rollout(&problem.dynamics, cost, &mut self.xs, &self.us);
+        clock.rolled_out(began);
         // States too, not only the cost: a cost that does not read every
         // state component (control effort only, say) stays finite over a
         // NaN state.
@@ -431,7 +478,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         cost: &C,
         options: &Options,
         state: &mut LoopState,
-        (start, interrupted): (Instant, &impl Fn() -> Option<Status>),
+        (clock, interrupted): (&Clock, &impl Fn() -> Option<Status>),
         (observe, annotate): (&mut impl FnMut(&TraceRow), &impl Fn(&Self, &mut TraceRow)),
     ) -> Status
     where
@@ -494,16 +541,18 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 Step::Interrupted(status) => {
                     // The nominal trajectory is unchanged, so the gains of
                     // this iteration's backward pass still describe it.
-                    row.elapsed = start.elapsed();
+                    row.elapsed = clock.start.elapsed();
                     annotate(self, &mut row);
                     self.trace.push(row);
+                    clock.row();
                     observe(&row);
                     return status;
                 }
             }
-            row.elapsed = start.elapsed();
+            row.elapsed = clock.start.elapsed();
             annotate(self, &mut row);
             self.trace.push(row);
+            clock.row();
             observe(&row);
             // Where the model in use can do no more, the next one takes
             // over from step 1, or the solve ends `NoProgress`.

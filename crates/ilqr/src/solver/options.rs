@@ -32,8 +32,20 @@ pub struct Options {
     /// about 256 knots of work (the tail of one pass after its last poll and
     /// the head of the next before its first), except that the initial
     /// rollout always completes (without it there is no trajectory to
-    /// return).
+    /// return). A constrained solve keeps back the time of its own wrap-up
+    /// after the loop (a rollout and a pass over the constraints), and
+    /// every solve keeps back [`Options::reserve_rollouts`] more.
     pub time_limit: Option<Duration>,
+    /// Time kept back at the end of `time_limit` for the caller's work
+    /// with the answer (reports, encoding), in units of one rollout of
+    /// this problem as measured during the solve (its slowest, the
+    /// constraints' values included): the solve stops that much earlier.
+    /// The unit scales with the horizon, the obstacles and the machine's
+    /// speed at the time, which a fixed duration would not. Default 0.
+    pub reserve_rollouts: f64,
+    /// Time kept back at the end of `time_limit` per iteration done: the
+    /// caller's work per trace row (encoding it). Default 0.
+    pub reserve_per_iteration: Duration,
     /// Initial regularisation μ (iLQG.m starts at 1: the first steps from a
     /// poor initial guess are damped, which here saves iterations).
     pub mu_init: f64,
@@ -164,6 +176,8 @@ impl Default for Options {
             max_iterations: 500,
             tolerance: 1e-9,
             time_limit: None,
+            reserve_rollouts: 0.0,
+            reserve_per_iteration: Duration::ZERO,
             mu_init: 1.0,
             mu_min: 1e-6,
             mu_max: 1e20,

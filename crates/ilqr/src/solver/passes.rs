@@ -257,12 +257,36 @@ where
     D: DiscreteDynamics<NX, NU>,
     C: Cost<NX, NU>,
 {
+    // Never interrupted.
+    polled_rollout(dynamics, cost, xs, us, &|| None).unwrap_or(f64::NAN)
+}
+
+/// [`rollout`], polling `interrupted` every 128 knots: on a stop, how the
+/// solve must end, with `xs` rolled out only part of the way (the states
+/// of the same controls from the same start: unchanged where they were
+/// already their rollout).
+pub(super) fn polled_rollout<D, C, const NX: usize, const NU: usize>(
+    dynamics: &D,
+    cost: &C,
+    xs: &mut [SVector<f64, NX>],
+    us: &[SVector<f64, NU>],
+    interrupted: &impl Fn() -> Option<Status>,
+) -> Result<f64, Status>
+where
+    D: DiscreteDynamics<NX, NU>,
+    C: Cost<NX, NU>,
+{
     let mut total = 0.0;
     for (k, u) in us.iter().enumerate() {
+        if poll_due(k)
+            && let Some(status) = interrupted()
+        {
+            return Err(status);
+        }
         total += cost.stage(k, &xs[k], u);
         xs[k + 1] = dynamics.step(&xs[k], u);
     }
-    total + cost.terminal(&xs[us.len()])
+    Ok(total + cost.terminal(&xs[us.len()]))
 }
 
 pub(super) fn all_finite<const R: usize, const C: usize>(m: &SMatrix<f64, R, C>) -> bool {
