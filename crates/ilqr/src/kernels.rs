@@ -1,4 +1,5 @@
-//! Small dense kernels for the Riccati recursion.
+//! Small dense kernels for the Riccati recursion (and the RK4 step's
+//! Jacobians).
 //!
 //! Everything here works on nalgebra's column-major storage directly
 //! (`[[f64; R]; C]`, one array per column) with loop bounds known at compile
@@ -112,6 +113,29 @@ pub(crate) fn add_mul<const R: usize, const K: usize, const C: usize>(
             }
         }
     }
+}
+
+/// `m·n` (`m` is `R×K`, `n` is `K×C`), skipping the entries of `m` that
+/// `nz` says are zero. Each entry sums over `k` in ascending order, as
+/// nalgebra's products do, so that skipping exact zeros changes at most
+/// the sign of a zero result.
+#[inline(always)]
+pub(crate) fn mul_sparse_left<const R: usize, const K: usize, const C: usize>(
+    m: &[Col<R>; K],
+    nz: Nonzeros<'_, R, K>,
+    n: &[Col<K>; C],
+) -> [Col<R>; C] {
+    let mut out = [[0.0; R]; C];
+    for j in 0..C {
+        for k in 0..K {
+            for i in 0..R {
+                if nz.used(m, i, k) {
+                    out[j][i] += m[k][i] * n[j][k];
+                }
+            }
+        }
+    }
+    out
 }
 
 /// `m·n` for a square, sparse `n` with a non-zero diagonal (a Jacobian
