@@ -82,6 +82,27 @@ pub trait Constraint<const NX: usize, const NU: usize>: Send + Sync {
         x: &SVector<f64, NX>,
         u: &SVector<f64, NU>,
     ) -> (f64, SVector<f64, NX>, SVector<f64, NU>);
+    /// Calls `f(component, value, equality)` for every component if the
+    /// constraint applies at `knot`, and returns [`Constraint::dim`] either
+    /// way. A solve's penalty terms ask this at every knot of every rollout:
+    /// through `dyn Constraint`, one call here stands for the calls to
+    /// `dim`, `applies`, `value` and `is_equality` it makes, which the
+    /// default makes directly on the implementing type (inlined).
+    fn values_at(
+        &self,
+        knot: Knot,
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        f: &mut dyn FnMut(usize, f64, bool),
+    ) -> usize {
+        let dim = self.dim();
+        if self.applies(knot) {
+            for i in 0..dim {
+                f(i, self.value(i, x, u), self.is_equality(i));
+            }
+        }
+        dim
+    }
     /// Calls `f(knot, component, value)` for every component at every knot
     /// where the constraint applies, knots in order (`0..N` for stages,
     /// `N` for the terminal state, where the control is zero). The default

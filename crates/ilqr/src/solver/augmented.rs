@@ -16,7 +16,7 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use nalgebra::SVector;
 
-use crate::constraint::{Constraints, Knot, violation};
+use crate::constraint::{Constraint, Constraints, Knot, violation};
 use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 
 /// Largest multiplier: keeps a constraint that cannot be met from driving
@@ -65,13 +65,15 @@ fn shifted(lambda: f64, rho: f64, c: f64, equality: bool) -> f64 {
 }
 
 impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
-    /// Calls `f(multiplier index, constraint, component)` for each
-    /// component that applies at `knot`.
+    /// Calls `f(multiplier index, constraint, component, value, equality)`
+    /// for each component that applies at `(knot, x, u)`.
     #[inline]
     fn components(
         &self,
         knot: Knot,
-        mut f: impl FnMut(usize, &dyn crate::constraint::Constraint<NX, NU>, usize),
+        x: &SVector<f64, NX>,
+        u: &SVector<f64, NU>,
+        mut f: impl FnMut(usize, &dyn Constraint<NX, NU>, usize, f64, bool),
     ) {
         let k = match knot {
             Knot::Stage(k) => k,
@@ -79,13 +81,11 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         };
         let mut at = k * self.m;
         for c in &self.constraints.other {
-            let dim = c.dim();
-            if c.applies(knot) {
-                for i in 0..dim {
-                    f(at + i, c.as_ref(), i);
-                }
-            }
-            at += dim;
+            let c = c.as_ref();
+            let first = at;
+            at += c.values_at(knot, x, u, &mut |i, value, equality| {
+                f(first + i, c, i, value, equality);
+            });
         }
     }
 
@@ -96,8 +96,7 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         } else {
             self.worst.get()
         };
-        self.components(knot, |at, c, i| {
-            let (value, equality) = (c.value(i, x, u), c.is_equality(i));
+        self.components(knot, x, u, |at, _, _, value, equality| {
             worst = worst.max(violation(value, equality));
             let s = shifted(self.lambda[at], self.rho, value, equality);
             total += s * s / (2.0 * self.rho);
@@ -113,11 +112,10 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     ) {
-        self.components(knot, |at, c, i| {
+        self.components(knot, x, u, |at, c, i, value, equality| {
             // Most components are slack with a zero multiplier: their term
             // is zero, and only its value is needed to see that.
-            let equality = c.is_equality(i);
-            if !equality && shifted(self.lambda[at], self.rho, c.value(i, x, u), false) == 0.0 {
+            if !equality && shifted(self.lambda[at], self.rho, value, false) == 0.0 {
                 return;
             }
             let (value, c_x, c_u) = c.linearize(i, x, u);
@@ -145,13 +143,8 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
             } else {
                 (Knot::Terminal, SVector::zeros())
             };
-            self.components(knot, |at, c, i| {
-                let s = shifted(
-                    self.lambda[at],
-                    self.rho,
-                    c.value(i, &states[k], &u),
-                    c.is_equality(i),
-                );
+            self.components(knot, &states[k], &u, |at, _, _, value, equality| {
+                let s = shifted(self.lambda[at], self.rho, value, equality);
                 out[at] = s.clamp(-MAX_MULTIPLIER, MAX_MULTIPLIER);
             });
         }
