@@ -193,12 +193,7 @@ impl<const M: usize> BoxQpSolution<M> {
         // clamped components, identity on the latter: zero right-hand rows
         // there give zero rows of the solution.
         let mut k = *Q_ux;
-        for (i, &free) in self.free.iter().enumerate() {
-            if !free {
-                k.row_mut(i).fill(0.0);
-            }
-        }
-        cholesky_solve(&self.factor, &mut k);
+        cholesky_solve_free(&self.factor, &self.free, &mut k);
         k.neg_mut();
         Some(k)
     }
@@ -241,9 +236,15 @@ pub fn solve_box_qp<const M: usize>(
 
     let h = (h + h.transpose()) * 0.5;
     let objective = |u: &SVector<f64, M>| g.dot(u) + 0.5 * u.dot(&(h * u));
+    // `f64::clamp` without its check that the bounds are ordered (done
+    // above): the check's panic kept the projection out of line.
     let project = |u: &mut SVector<f64, M>| {
         for i in 0..M {
-            u[i] = u[i].clamp(lower[i], upper[i]);
+            if u[i] < lower[i] {
+                u[i] = lower[i];
+            } else if u[i] > upper[i] {
+                u[i] = upper[i];
+            }
         }
     };
 
@@ -300,12 +301,7 @@ pub fn solve_box_qp<const M: usize>(
             }
         }
         let mut target = h * u_clamped + g;
-        for i in 0..M {
-            if !free[i] {
-                target[i] = 0.0;
-            }
-        }
-        cholesky_solve(&factor, &mut target);
+        cholesky_solve_free(&factor, &free, &mut target);
         let mut search = SVector::<f64, M>::zeros();
         for i in 0..M {
             if free[i] {
@@ -393,25 +389,48 @@ fn cholesky_masked<const M: usize>(
     true
 }
 
-/// Solves `L Lᵀ X = B` in place of `B`, column by column.
-fn cholesky_solve<const M: usize, const N: usize>(
+/// Solves `L Lᵀ X = B` in place of `B`, column by column, for the factor
+/// [`cholesky_masked`] makes, with `B`'s clamped rows (where `free` is not
+/// set) taken as zero. The factor is the identity on those rows and
+/// columns and zero between them and the free ones, so the solution is
+/// zero there and the free rows see only each other: the clamped rows are
+/// set to zero and skipped, with results equal to the full solve's
+/// (`0·x` adds nothing to a sum). Half the divisions with one of two
+/// controls clamped.
+fn cholesky_solve_free<const M: usize, const N: usize>(
     l: &SMatrix<f64, M, M>,
+    free: &[bool; M],
     b: &mut SMatrix<f64, M, N>,
 ) {
     for c in 0..N {
+        for i in 0..M {
+            if !free[i] {
+                b[(i, c)] = 0.0;
+            }
+        }
         // L y = b.
         for i in 0..M {
+            if !free[i] {
+                continue;
+            }
             let mut s = b[(i, c)];
             for k in 0..i {
-                s -= l[(i, k)] * b[(k, c)];
+                if free[k] {
+                    s -= l[(i, k)] * b[(k, c)];
+                }
             }
             b[(i, c)] = s / l[(i, i)];
         }
         // Lᵀ x = y.
         for i in (0..M).rev() {
+            if !free[i] {
+                continue;
+            }
             let mut s = b[(i, c)];
             for k in i + 1..M {
-                s -= l[(k, i)] * b[(k, c)];
+                if free[k] {
+                    s -= l[(k, i)] * b[(k, c)];
+                }
             }
             b[(i, c)] = s / l[(i, i)];
         }
