@@ -99,7 +99,12 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         self.components(knot, x, u, |at, _, _, value, equality| {
             worst = worst.max(violation(value, equality));
             let s = shifted(self.lambda[at], self.rho, value, equality);
-            total += s * s / (2.0 * self.rho);
+            // Most components are slack with a zero multiplier. Their term
+            // is +0, which leaves the sum of terms (each ≥ +0) as it was:
+            // skipping its division changes nothing.
+            if s != 0.0 {
+                total += s * s / (2.0 * self.rho);
+            }
         });
         self.worst.set(worst);
         total
