@@ -742,9 +742,14 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
     }
     // A search lists its starts; a single solve's one start is the result.
     if r.starts.len() > 1 {
+        let width = r
+            .starts
+            .iter()
+            .map(|st| st.label.len())
+            .fold(22, usize::max);
         for (i, st) in r.starts.iter().enumerate() {
             s += &format!(
-                "{:<17}{:<22} {:<14} cost {:.6}, {} iterations{}{}\n",
+                "{:<17}{:<width$} {:<14} cost {:.6}, {} iterations{}{}\n",
                 format!("start {i}"),
                 st.label,
                 st.status.as_str(),

@@ -602,9 +602,34 @@ fn dispatch(call: Call<'_>) -> Result<SolveResult, Unsolvable> {
 enum Start {
     /// The plain initial guess: the given controls or the model's rest.
     Plain,
+    /// The plain guess, solved keeping the clearances it already has
+    /// ([`KEPT_CLEAR_PENALTY`]).
+    KeptClear,
     /// The plain guess bent past an obstacle by a guiding solve.
     Detour(Detour),
 }
+
+impl Start {
+    /// The augmented Lagrangian's first penalty for the constraints this
+    /// start's guess already meets. The plain start explores: at ALTRO's
+    /// penalty of 1 the first inner solve all but ignores the obstacles,
+    /// and the route it ends on is wherever the penalties then push it
+    /// out. The others are routes to keep: a stiff penalty holds the
+    /// path on its side of every obstacle it clears, as an interior-point
+    /// solver's barrier would.
+    fn penalty_feasible(&self) -> f64 {
+        match self {
+            Self::Plain => 1.0,
+            Self::KeptClear | Self::Detour(_) => KEPT_CLEAR_PENALTY,
+        }
+    }
+}
+
+/// The first penalty (cost units per squared constraint unit) of the
+/// constraints a route start's guess already meets. A path 0.1 m into
+/// an obstacle then costs 5 per knot; the seed's whole flight costs
+/// about 5000.
+const KEPT_CLEAR_PENALTY: f64 = 1e3;
 
 /// A start's outcome.
 struct Attempt {
@@ -715,6 +740,11 @@ fn kept<M: Model<NX, NU>, const NX: usize, const NU: usize>(
         .iter()
         .map(|start| match start {
             Start::Plain => true,
+            Start::KeptClear => {
+                let keep = room > 0;
+                room -= usize::from(keep);
+                keep
+            }
             Start::Detour(d) => {
                 let keep = room > 0 && !(settled && d.is_taken_by(path()));
                 room -= usize::from(keep);
@@ -1105,6 +1135,11 @@ fn starts<M: Model<NX, NU>, const NX: usize, const NU: usize>(spec: &ProblemSpec
     if !spec.searches() || spec.obstacles.is_empty() || spec.solver.max_iterations == 0 {
         return out;
     }
+    // With hard obstacles, the plain guess is also solved keeping the
+    // clearances it has.
+    if spec.obstacles.iter().any(|o| o.clearance.is_some()) {
+        out.push(Start::KeptClear);
+    }
     let (from, to) = (
         planar(&spec.initial_state, M::POSITION),
         planar(&spec.goal_state, M::POSITION),
@@ -1193,11 +1228,12 @@ where
         cost_lower_bound: Some(0.0),
         second_order: spec.solver.method == Method::Ddp,
         constraint_tolerance: spec.solver.constraint_tolerance,
+        penalty_feasible: start.penalty_feasible(),
         ..Options::default()
     };
     let cost = objective::<NX, NU>(spec, M::POSITION)?;
     let guide = match start {
-        Start::Plain => None,
+        Start::Plain | Start::KeptClear => None,
         Start::Detour(d) => Some(
             objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPoint {
                 point: d.via,
@@ -1332,17 +1368,16 @@ fn guide_weight(spec: &ProblemSpec, (px, py): (usize, usize)) -> f64 {
 /// A start's row in the result's `starts`.
 fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bool) -> StartReport {
     let r = &attempt.result;
+    let plain = if spec.initial_controls.is_some() {
+        "initial_controls"
+    } else if spec.warm_start.is_some() {
+        "warm_start"
+    } else {
+        "rest controls"
+    };
     let (label, obstacle, side) = match start {
-        Start::Plain => {
-            let label = if spec.initial_controls.is_some() {
-                "initial_controls"
-            } else if spec.warm_start.is_some() {
-                "warm_start"
-            } else {
-                "rest controls"
-            };
-            (label.to_owned(), None, None)
-        }
+        Start::Plain => (plain.to_owned(), None, None),
+        Start::KeptClear => (format!("{plain}, clearances kept"), None, None),
         Start::Detour(d) => {
             let v = d.direction;
             let compass = if v.x.abs() >= v.y.abs() {

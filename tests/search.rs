@@ -196,7 +196,9 @@ async fn the_answer_is_the_same_on_one_worker_two_and_the_cli() {
 }
 
 /// One budget covers every start: a search of slow starts answers at its
-/// time limit, each start stopped by it.
+/// time limit. The plain start spends it, and the detours that no longer
+/// fit are not run (a detour lent to the idle worker meanwhile is stopped
+/// by the same budget).
 #[tokio::test]
 async fn every_start_shares_the_budget() {
     let s = Server::default().await;
@@ -208,16 +210,17 @@ async fn every_start_shares_the_budget() {
     let elapsed = t.elapsed();
     assert_eq!(r["status"], "time_limit");
     let starts = r["starts"].as_array().unwrap();
-    assert_eq!(starts.len(), 3);
+    assert!((1..=3).contains(&starts.len()), "{starts:?}");
+    assert_eq!(starts[0]["label"], "rest controls");
     for start in starts {
         assert_eq!(start["status"], "time_limit", "{start}");
     }
-    assert!(
-        r["solve_time_ms"].as_f64().unwrap() < 1200.0,
-        "{}",
-        r["solve_time_ms"]
-    );
-    assert!(elapsed.as_millis() < 3000, "{elapsed:?}");
+    // The budget, with the documented slack (5%, at least 5 ms), and then
+    // some for a busy machine: a detour run after the plain start would
+    // take as long again.
+    let solve_ms = r["solve_time_ms"].as_f64().unwrap();
+    assert!(solve_ms < 600.0 * 1.05 + 50.0, "{solve_ms}");
+    assert!(elapsed.as_millis() < 2000, "{elapsed:?}");
 }
 
 #[tokio::test]

@@ -24,15 +24,16 @@ use crate::cost::{Cost, StageExpansion, TerminalExpansion};
 pub(super) const MAX_MULTIPLIER: f64 = 1e8;
 
 /// The base cost plus the penalty terms at multipliers `lambda` and
-/// penalty `rho`. `lambda` holds `m` multipliers per knot, knots `0..=N`
-/// (the terminal state's last), components in constraint order.
+/// penalties `rho`. `lambda` holds `m` multipliers per knot, knots `0..=N`
+/// (the terminal state's last), components in constraint order; `rho` one
+/// penalty per component, the same at every knot.
 pub(super) struct Augmented<'a, C, const NX: usize, const NU: usize> {
     pub(super) base: &'a C,
     pub(super) constraints: &'a Constraints<NX, NU>,
     pub(super) lambda: &'a [f64],
     pub(super) m: usize,
     pub(super) n: usize,
-    pub(super) rho: f64,
+    pub(super) rho: &'a [f64],
     /// The largest violation of the last rollout under this cost, as
     /// [`Constraints::violation`] counts it: each rollout's penalty terms
     /// evaluate every constraint anyway, so the trace's violation needs no
@@ -65,26 +66,27 @@ fn shifted(lambda: f64, rho: f64, c: f64, equality: bool) -> f64 {
 }
 
 impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
-    /// Calls `f(multiplier index, constraint, component, value, equality)`
-    /// for each component that applies at `(knot, x, u)`.
+    /// Calls `f(multiplier index, component index at the knot, constraint,
+    /// component, value, equality)` for each component that applies at
+    /// `(knot, x, u)`.
     #[inline]
     fn components(
         &self,
         knot: Knot,
         x: &SVector<f64, NX>,
         u: &SVector<f64, NU>,
-        mut f: impl FnMut(usize, &dyn Constraint<NX, NU>, usize, f64, bool),
+        mut f: impl FnMut(usize, usize, &dyn Constraint<NX, NU>, usize, f64, bool),
     ) {
         let k = match knot {
             Knot::Stage(k) => k,
             Knot::Terminal => self.n,
         };
-        let mut at = k * self.m;
+        let (base, mut at) = (k * self.m, 0);
         for c in &self.constraints.other {
             let c = c.as_ref();
             let first = at;
             at += c.values_at(knot, x, u, &mut |i, value, equality| {
-                f(first + i, c, i, value, equality);
+                f(base + first + i, first + i, c, i, value, equality);
             });
         }
     }
@@ -96,14 +98,15 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         } else {
             self.worst.get()
         };
-        self.components(knot, x, u, |at, _, _, value, equality| {
+        self.components(knot, x, u, |at, j, _, _, value, equality| {
             worst = worst.max(violation(value, equality));
-            let s = shifted(self.lambda[at], self.rho, value, equality);
+            let rho = self.rho[j];
+            let s = shifted(self.lambda[at], rho, value, equality);
             // Most components are slack with a zero multiplier. Their term
             // is +0, which leaves the sum of terms (each ≥ +0) as it was:
             // skipping its division changes nothing.
             if s != 0.0 {
-                total += s * s / (2.0 * self.rho);
+                total += s * s / (2.0 * rho);
             }
         });
         self.worst.set(worst);
@@ -117,39 +120,44 @@ impl<C, const NX: usize, const NU: usize> Augmented<'_, C, NX, NU> {
         u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     ) {
-        self.components(knot, x, u, |at, c, i, value, equality| {
+        self.components(knot, x, u, |at, j, c, i, value, equality| {
+            let rho = self.rho[j];
             // Most components are slack with a zero multiplier: their term
             // is zero, and only its value is needed to see that.
-            if !equality && shifted(self.lambda[at], self.rho, value, false) == 0.0 {
+            if !equality && shifted(self.lambda[at], rho, value, false) == 0.0 {
                 return;
             }
             let (value, c_x, c_u) = c.linearize(i, x, u);
-            let s = shifted(self.lambda[at], self.rho, value, equality);
+            let s = shifted(self.lambda[at], rho, value, equality);
             e.l_x += c_x * s;
             e.l_u += c_u * s;
-            e.l_xx += c_x * c_x.transpose() * self.rho;
-            e.l_uu += c_u * c_u.transpose() * self.rho;
-            e.l_ux += c_u * c_x.transpose() * self.rho;
+            e.l_xx += c_x * c_x.transpose() * rho;
+            e.l_uu += c_u * c_u.transpose() * rho;
+            e.l_ux += c_u * c_x.transpose() * rho;
         });
     }
 
     /// The multipliers after an inner solve that ended at `(states,
     /// controls)`: `λ ← max(0, λ + ρc)` (`λ + ρc` for an equality), at most
-    /// [`MAX_MULTIPLIER`] in size.
+    /// [`MAX_MULTIPLIER`] in size; and each component's largest violation
+    /// along the trajectory, into `violations`.
     pub(super) fn update(
         &self,
         states: &[SVector<f64, NX>],
         controls: &[SVector<f64, NU>],
         out: &mut [f64],
+        violations: &mut [f64],
     ) {
+        violations.fill(0.0);
         for k in 0..=self.n {
             let (knot, u) = if k < self.n {
                 (Knot::Stage(k), controls[k])
             } else {
                 (Knot::Terminal, SVector::zeros())
             };
-            self.components(knot, &states[k], &u, |at, _, _, value, equality| {
-                let s = shifted(self.lambda[at], self.rho, value, equality);
+            self.components(knot, &states[k], &u, |at, j, _, _, value, equality| {
+                violations[j] = violations[j].max(violation(value, equality));
+                let s = shifted(self.lambda[at], self.rho[j], value, equality);
                 out[at] = s.clamp(-MAX_MULTIPLIER, MAX_MULTIPLIER);
             });
         }

@@ -41,8 +41,18 @@ use crate::cost::Cost;
 use crate::dynamics::DiscreteDynamics;
 
 /// The violation must fall by at least this fraction per outer iteration at
-/// the largest penalty, or the problem counts as infeasible.
+/// the largest penalties, or the outer iteration counts as stalled.
 const STALL: f64 = 0.01;
+
+/// Stalled outer iterations in a row that end the solve.
+const STALL_ROUNDS: usize = 3;
+
+/// A violation stalled above this many times the tolerance, with every
+/// penalty at its cap, is evidence that the constraints cannot be met
+/// from here (`Infeasible`); one stalled below it only shows a stuck
+/// solver (`NoProgress`): a few times the tolerance, still moving, is not
+/// evidence of anything.
+const EVIDENCE: f64 = 10.0;
 
 /// The largest violation the projection starts from; below it the inner
 /// solves are tight.
@@ -93,6 +103,14 @@ const MU_FLOOR: f64 = 1e-2;
 /// classic rule of augmented-Lagrangian methods, Nocedal & Wright §17.4).
 const SUFFICIENT: f64 = 0.25;
 
+/// Whether every component still violated (beyond `tolerance`) has its
+/// penalty at `max`.
+fn at_cap(rho: &[f64], violations: &[f64], tolerance: f64, max: f64) -> bool {
+    rho.iter()
+        .zip(violations)
+        .all(|(&rho, &v)| v <= tolerance || rho >= max)
+}
+
 impl<const NX: usize, const NU: usize> Solver<NX, NU> {
     /// Solve `problem` subject to `constraints` (see the
     /// [module documentation](self)). Control bounds hold exactly in the
@@ -134,6 +152,29 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             v.clear();
             v.resize((n + 1) * m, 0.0);
         }
+        // A component the initial guess meets everywhere starts at a
+        // stiffer penalty than one it violates: see `penalty_feasible`.
+        let mut offsets = Vec::with_capacity(constraints.other.len());
+        let mut at = 0;
+        for c in &constraints.other {
+            offsets.push(at);
+            at += c.dim();
+        }
+        self.violations.clear();
+        self.violations.resize(m, 0.0);
+        constraints.for_each_value(&self.xs, &self.us, |j, i, _, value, equality| {
+            let v = &mut self.violations[offsets[j] + i];
+            *v = v.max(crate::constraint::violation(value, equality));
+        });
+        self.rho.clear();
+        self.rho.extend(self.violations.iter().map(|&v| {
+            if v == 0.0 {
+                options.penalty_feasible.max(options.penalty_initial)
+            } else {
+                options.penalty_initial
+            }
+        }));
+
         self.best_xs.clone_from(&self.xs);
         self.best_us.clone_from(&self.us);
         self.best_K.clone_from(&self.K);
@@ -143,7 +184,6 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
 
         let interrupted = super::interruption(cancel, options, &clock);
         let dynamics = &problem.dynamics;
-        let mut rho = options.penalty_initial;
         // Control bounds alone need no outer loop: one tight solve.
         let mut tight = m == 0;
         let mut outer = 0;
@@ -151,6 +191,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let mut carried_mu: Option<f64> = None;
         let mut previous = f64::INFINITY;
         let mut best = (f64::INFINITY, 0usize);
+        let mut stuck = 0;
         // The gains in the workspace, carried from one inner solve to the
         // next: about the same trajectory, until a step moves it.
         let mut gains = None;
@@ -158,13 +199,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
         let status = loop {
             outer += 1;
             let lambda = std::mem::take(&mut self.lambda);
+            let rho = std::mem::take(&mut self.rho);
+            let rho_max = rho.iter().copied().fold(0.0, f64::max);
             let augmented = Augmented {
                 base: &problem.cost,
                 constraints,
                 lambda: &lambda,
                 m,
                 n,
-                rho,
+                rho: &rho,
                 worst: Worst::default(),
             };
             // The iterate's cost under this outer iteration's multipliers
@@ -182,6 +225,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             if let Err(status) = rolled {
                 last_summary = state.summary(status, start.elapsed());
                 self.lambda = lambda;
+                self.rho = rho;
                 break status;
             }
             clock.rolled_out(began);
@@ -202,7 +246,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             }
             let annotate = |_: &Self, row: &mut TraceRow| {
                 row.outer_iteration = outer;
-                row.penalty = rho;
+                row.penalty = rho_max;
                 // An accepted step's rollout was the line search's last.
                 if row.step_size > 0.0 {
                     nominal.set(augmented.worst.get());
@@ -236,6 +280,15 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             // The multipliers no longer shrink the violation: what is left
             // is the inner problems' stiffness, not the multipliers' error.
             let stalled = violation > SUFFICIENT * previous;
+            // Outer iterations in a row at the largest penalties without the
+            // violation falling by `STALL`.
+            if at_cap(&rho, &self.violations, tolerance, options.penalty_max)
+                && violation > (1.0 - STALL) * previous
+            {
+                stuck += 1;
+            } else {
+                stuck = 0;
+            }
             // An inner solve cut short by its own cap goes on as the next
             // outer iteration; the caller's cap ends the solve.
             let spent = iterations >= options.max_iterations;
@@ -259,16 +312,14 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                         &interrupted,
                     )
                     .then_some(Status::Converged),
-                _ if outer >= options.max_outer_iterations
-                    || (rho >= options.penalty_max && violation > (1.0 - STALL) * previous) =>
-                {
-                    // The outer loop can do no more. Where it came close
-                    // after an inner solve that settled, the projection may
-                    // finish the job; an inner solve cut short by its cap
-                    // has not settled.
+                _ if outer >= options.max_outer_iterations || stuck >= STALL_ROUNDS => {
+                    // The outer loop can do no more. Where it came close,
+                    // the projection may finish the job: the result is
+                    // `Converged` after an inner solve that settled, and
+                    // feasible but unproven (`MaxIterations`) after one cut
+                    // short by its cap.
                     let settled = matches!(inner, Status::Converged | Status::NoProgress);
-                    if (near || feasible)
-                        && settled
+                    if near
                         && self.settle_by_projection(
                             dynamics,
                             constraints,
@@ -278,11 +329,26 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                             &interrupted,
                         )
                     {
-                        Some(Status::Converged)
+                        Some(if settled {
+                            Status::Converged
+                        } else {
+                            Status::MaxIterations
+                        })
                     } else if constraints.violation(&self.xs, &self.us) <= tolerance {
                         Some(Status::MaxIterations)
-                    } else {
+                    } else if stuck >= STALL_ROUNDS && violation > EVIDENCE * tolerance {
+                        // Evidence: the violation stalled well above the
+                        // tolerance for several outer iterations with every
+                        // penalty at its cap.
                         Some(Status::Infeasible)
+                    } else if stuck >= STALL_ROUNDS {
+                        // Stalled just above the tolerance: the solver is
+                        // stuck, which is no evidence against the problem.
+                        Some(Status::NoProgress)
+                    } else {
+                        // The outer iterations ran out, the violation still
+                        // falling.
+                        Some(Status::MaxIterations)
                     }
                 }
                 _ => None,
@@ -298,6 +364,7 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 );
                 last_summary = state.summary(status, start.elapsed());
                 self.lambda = lambda;
+                self.rho = rho;
                 break status;
             }
             if near || feasible {
@@ -305,20 +372,33 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
                 // projection starts from an accurate minimum.
                 tight = true;
             }
+            augmented.update(
+                &self.xs,
+                &self.us,
+                &mut self.lambda_next,
+                &mut self.violations,
+            );
+            self.rho = rho;
             if !feasible && stalled {
                 // The multipliers alone did not shrink the violation
-                // enough: the penalty grows. Growing it every outer
+                // enough: the penalties grow. Growing them every outer
                 // iteration instead (ALTRO's default) conditions the inner
                 // problems so badly at 1e6 and beyond that their line
                 // searches fail (the Dubins car stalls at 1.2e-5).
-                rho = (rho * options.penalty_scaling).min(options.penalty_max);
+                for rho in &mut self.rho {
+                    *rho = (*rho * options.penalty_scaling).min(options.penalty_max);
+                }
             }
-            augmented.update(&self.xs, &self.us, &mut self.lambda_next);
             previous = violation;
             self.lambda = lambda;
             std::mem::swap(&mut self.lambda, &mut self.lambda_next);
         };
-        if status == Status::Infeasible && best.1 != outer {
+        // (Not after a stop on the clock: a pass over the constraints costs
+        // as much as a rollout, and the best so far is the latest then.)
+        if !matches!(status, Status::TimeLimit | Status::Cancelled)
+            && best.1 != outer
+            && constraints.violation(&self.xs, &self.us) > tolerance
+        {
             // An earlier outer iteration violated the constraints least.
             self.xs.copy_from_slice(&self.best_xs);
             self.us.copy_from_slice(&self.best_us);

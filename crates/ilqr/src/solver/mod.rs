@@ -150,6 +150,11 @@ pub struct Solver<const NX: usize, const NU: usize> {
     /// knots, and the next outer iteration's.
     lambda: Vec<f64>,
     lambda_next: Vec<f64>,
+    /// Its penalties, one per component (the same at every knot), and
+    /// each component's largest violation at the last outer iteration's
+    /// end.
+    rho: Vec<f64>,
+    violations: Vec<f64>,
     /// The least violating iterate of a constrained solve, with its gains.
     best_xs: Vec<SVector<f64, NX>>,
     best_us: Vec<SVector<f64, NU>>,
@@ -285,6 +290,8 @@ impl<const NX: usize, const NU: usize> Solver<NX, NU> {
             bounds: None,
             lambda: Vec::new(),
             lambda_next: Vec::new(),
+            rho: Vec::new(),
+            violations: Vec::new(),
             best_xs: Vec::new(),
             best_us: Vec::new(),
             best_K: Vec::new(),

@@ -154,6 +154,10 @@ pub struct Options {
     pub constraint_tolerance: f64,
     /// The augmented Lagrangian's first penalty ρ. Default 1 (ALTRO's).
     pub penalty_initial: f64,
+    /// The first penalty of a constraint component that the initial guess
+    /// meets at every knot (a route that already clears an obstacle), if
+    /// larger than `penalty_initial`.
+    pub penalty_feasible: f64,
     /// The factor ρ grows by after each outer iteration that ends above
     /// the tolerance. Default 10 (ALTRO's).
     pub penalty_scaling: f64,
@@ -191,6 +195,7 @@ impl Default for Options {
             second_order: false,
             constraint_tolerance: 1e-6,
             penalty_initial: 1.0,
+            penalty_feasible: 1.0,
             penalty_scaling: 10.0,
             penalty_max: 1e8,
             max_outer_iterations: 30,
