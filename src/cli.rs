@@ -749,7 +749,7 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
             .fold(22, usize::max);
         for (i, st) in r.starts.iter().enumerate() {
             s += &format!(
-                "{:<17}{:<width$} {:<14} cost {:.6}, {} iterations{}{}\n",
+                "{:<17}{:<width$} {:<14} cost {:.6}, {} iterations{}{}{}\n",
                 format!("start {i}"),
                 st.label,
                 st.status.as_str(),
@@ -757,6 +757,11 @@ pub fn summary(spec: &ProblemSpec, r: &SolveResult) -> String {
                 st.iterations,
                 st.guide_iterations
                     .map_or(String::new(), |g| format!(" (+{g} guiding)")),
+                if st.passes.is_some() && st.passes != st.side {
+                    ", slid back round the other side"
+                } else {
+                    ""
+                },
                 if st.chosen { "  <- chosen" } else { "" }
             );
         }

@@ -27,7 +27,7 @@ use ilqr::{
     Clearance, Constraint, Constraints, ControlBounds, ControlEffort, Cost, DiscreteDynamics,
     Euler, ExpObstacle, GoalTolerance, Model, Objective, Options, Problem, Rectangle, Region, Rk4,
     Shape, ShapeObstacle, SolveError, Solver, StateBounds, StateTracking, TerminalTracking,
-    ViaPoint,
+    ViaPath,
     search::{self, Detour},
 };
 use nalgebra::{SVector, Vector2};
@@ -321,6 +321,14 @@ pub struct StartReport {
     pub side: Option<DetourSide>,
     /// How its solve ended.
     pub status: SolveStatus,
+    /// For a detour: the side of the straight path on which its answer
+    /// passes its obstacle. Not `side` when its solve slid back round the
+    /// other way, the plain start's way as a rule: that side was then not
+    /// searched by this start. Absent for the plain starts, and for an
+    /// answer through the obstacle's centre.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    #[schema(nullable = false)]
+    pub passes: Option<DetourSide>,
     /// Its final cost.
     pub cost: f64,
     /// Its solve's iterations.
@@ -641,6 +649,9 @@ struct Attempt {
 /// The iterations a guiding solve may take: it only has to bend the guess
 /// to one side; the real solve does the rest.
 const GUIDE_ITERATIONS: usize = 6;
+/// How much more the guide's route weighs than the problem's own pull on
+/// the position.
+const GUIDE_GAIN: f64 = 10.0;
 /// The guiding solve's relative tolerance, loose for the same reason.
 const GUIDE_TOLERANCE: f64 = 1e-3;
 /// Time kept back from a solve's budget for turning the solver's answer
@@ -709,7 +720,7 @@ where
     let rows = ran
         .iter()
         .enumerate()
-        .map(|(k, (i, a))| start_report(spec, &starts[*i], a, k == chosen))
+        .map(|(k, (i, a))| start_report(spec, (&starts[*i], M::POSITION), a, k == chosen))
         .collect();
     let mut result = ran
         .into_iter()
@@ -1234,14 +1245,15 @@ where
     let cost = objective::<NX, NU>(spec, M::POSITION)?;
     let guide = match start {
         Start::Plain | Start::KeptClear => None,
-        Start::Detour(d) => Some(
-            objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPoint {
-                point: d.via,
-                knot: d.knot,
-                weight: guide_weight(spec, M::POSITION),
-                position: M::POSITION,
-            }),
-        ),
+        Start::Detour(d) => Some(objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPath {
+            from: planar(&spec.initial_state, M::POSITION),
+            via: d.via,
+            to: planar(&spec.goal_state, M::POSITION),
+            knot: d.knot,
+            horizon: spec.horizon,
+            weight: guide_weight(spec, M::POSITION),
+            position: M::POSITION,
+        })),
     };
     let constraints = hard_constraints::<NX, NU>(spec, M::POSITION)?;
     let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
@@ -1356,18 +1368,35 @@ where
     })
 }
 
-/// The guiding solve's via-point weight: ten times the largest terminal
-/// weight on the position (at least 1), so that the via-point wins over
-/// the obstacle's push and the goal's pull.
+/// The guiding solve's route weight per stage: [`GUIDE_GAIN`] times the
+/// larger of the position's weight per stage and its terminal weight
+/// spread over the stages (at least 1 in all). Both scale with the number
+/// of stages as the rest of the cost does, so a problem resampled at a
+/// finer `dt` gets the same guide.
 fn guide_weight(spec: &ProblemSpec, (px, py): (usize, usize)) -> f64 {
-    let w = &spec.weights.terminal;
-    let at = |i: usize| w.get(i).copied().unwrap_or(0.0);
-    10.0 * at(px).max(at(py)).max(1.0)
+    let w = |weights: &[f64]| {
+        let at = |i: usize| weights.get(i).copied().unwrap_or(0.0);
+        at(px).max(at(py))
+    };
+    let n = spec.horizon.max(1) as f64;
+    GUIDE_GAIN
+        * w(&spec.weights.state)
+            .max(w(&spec.weights.terminal) / n)
+            .max(1.0 / n)
 }
 
 /// A start's row in the result's `starts`.
-fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bool) -> StartReport {
+fn start_report(
+    spec: &ProblemSpec,
+    (start, position): (&Start, (usize, usize)),
+    attempt: &Attempt,
+    chosen: bool,
+) -> StartReport {
     let r = &attempt.result;
+    let wire = |side: search::Side| match side {
+        search::Side::Left => DetourSide::Left,
+        search::Side::Right => DetourSide::Right,
+    };
     let plain = if spec.initial_controls.is_some() {
         "initial_controls"
     } else if spec.warm_start.is_some() {
@@ -1375,9 +1404,9 @@ fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bo
     } else {
         "rest controls"
     };
-    let (label, obstacle, side) = match start {
-        Start::Plain => (plain.to_owned(), None, None),
-        Start::KeptClear => (format!("{plain}, clearances kept"), None, None),
+    let (label, obstacle, side, passes) = match start {
+        Start::Plain => (plain.to_owned(), None, None, None),
+        Start::KeptClear => (format!("{plain}, clearances kept"), None, None, None),
         Start::Detour(d) => {
             let v = d.direction;
             let compass = if v.x.abs() >= v.y.abs() {
@@ -1387,14 +1416,12 @@ fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bo
             } else {
                 "south"
             };
-            let side = match d.side {
-                search::Side::Left => DetourSide::Left,
-                search::Side::Right => DetourSide::Right,
-            };
+            let path = r.states.iter().map(|x| planar(x, position));
             (
                 format!("{compass} of obstacle {}", d.obstacle),
                 Some(d.obstacle),
-                Some(side),
+                Some(wire(d.side)),
+                d.side_of(path).map(wire),
             )
         }
     };
@@ -1402,6 +1429,7 @@ fn start_report(spec: &ProblemSpec, start: &Start, attempt: &Attempt, chosen: bo
         label,
         obstacle,
         side,
+        passes,
         status: r.status,
         cost: r.cost,
         iterations: r.iterations,

@@ -13,6 +13,7 @@
 mod cli;
 mod common;
 mod constraints;
+mod deadlines;
 mod grpc;
 mod http;
 mod models;

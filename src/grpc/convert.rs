@@ -739,6 +739,7 @@ pub fn result_message(r: &SolveResult) -> proto::SolveResult {
                 label: s.label.clone(),
                 obstacle: s.obstacle.map(u32_of),
                 side: s.side.map(|d| d.as_str().into()),
+                passes: s.passes.map(|d| d.as_str().into()),
                 status: status(s.status).into(),
                 cost: s.cost,
                 iterations: u32_of(s.iterations),

@@ -308,39 +308,53 @@ impl<const NX: usize> TerminalCost<NX> for TerminalTracking<NX> {
     }
 }
 
-/// `weight · ‖p_k − point‖²` at the one stage `k = knot`, 0 elsewhere:
-/// pulls the position through a via-point at a given time. Not part of any
-/// problem's cost: a search over routes ([`crate::search`]) adds it to a
-/// short guiding solve that bends the initial guess to one side of an
-/// obstacle.
+/// `weight · ‖p_k − r_k‖²` at every stage: pulls the position along a
+/// route through a via-point, `r_k` moving at constant speed from `from`
+/// to `via` over stages `0..=knot`, then from `via` to `to` over
+/// `knot..=horizon`. Not part of any problem's cost: a search over routes
+/// ([`crate::search`]) adds it to a short guiding solve that bends the
+/// initial guess to one side of an obstacle. Pulling every stage, not the
+/// via-point's alone, keeps the guided path on the route before and after
+/// it, whatever the number of stages: a pull at one stage bends the path
+/// less the more stages share the rest of the cost, and a vehicle with
+/// momentum swings past a lone via-point and back round the other side.
 #[derive(Debug, Clone, Copy, PartialEq)]
-pub struct ViaPoint {
-    /// The point, m.
-    pub point: Vector2<f64>,
-    /// The stage at which the position is pulled to it (`1 ≤ knot < N`).
+pub struct ViaPath {
+    /// Where the route starts, m.
+    pub from: Vector2<f64>,
+    /// The via-point, m.
+    pub via: Vector2<f64>,
+    /// Where the route ends, m.
+    pub to: Vector2<f64>,
+    /// The stage at the via-point (`1 ≤ knot < horizon`).
     pub knot: usize,
-    /// Weight (cost units per m²).
+    /// The number of stages `N`.
+    pub horizon: usize,
+    /// Weight per stage (cost units per m²).
     pub weight: f64,
     /// Indices of the position components in the state.
     pub position: (usize, usize),
 }
 
-impl ViaPoint {
-    fn offset<const NX: usize>(&self, x: &SVector<f64, NX>) -> Vector2<f64> {
-        Vector2::new(
-            x[self.position.0] - self.point.x,
-            x[self.position.1] - self.point.y,
-        )
+impl ViaPath {
+    /// The route's point at stage `k`.
+    pub fn point(&self, k: usize) -> Vector2<f64> {
+        let (k, knot, n) = (k as f64, self.knot as f64, self.horizon as f64);
+        if k <= knot {
+            self.from + (self.via - self.from) * (k / knot)
+        } else {
+            self.via + (self.to - self.via) * ((k - knot) / (n - knot))
+        }
+    }
+
+    fn offset<const NX: usize>(&self, k: usize, x: &SVector<f64, NX>) -> Vector2<f64> {
+        Vector2::new(x[self.position.0], x[self.position.1]) - self.point(k)
     }
 }
 
-impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPoint {
+impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPath {
     fn value(&self, k: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
-        if k == self.knot {
-            self.weight * self.offset(x).norm_squared()
-        } else {
-            0.0
-        }
+        self.weight * self.offset(k, x).norm_squared()
     }
 
     fn expand(
@@ -350,11 +364,9 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPoint {
         _u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     ) {
-        if k == self.knot {
-            let grad = self.offset(x) * (2.0 * self.weight);
-            let hess = Matrix2::identity() * (2.0 * self.weight);
-            add_in_plane(self.position, &grad, &hess, e);
-        }
+        let grad = self.offset(k, x) * (2.0 * self.weight);
+        let hess = Matrix2::identity() * (2.0 * self.weight);
+        add_in_plane(self.position, &grad, &hess, e);
     }
 }
 

@@ -30,7 +30,7 @@
 //!   backward pass;
 //! * [`search`]: where a search over the ways around obstacles starts
 //!   ([`search::detours`]: a via-point on each side of each obstacle in the
-//!   way, for a guiding solve with a [`ViaPoint`] term).
+//!   way, for a guiding solve with a [`ViaPath`] term).
 //! * [`solver`]: the iLQR driver loop (backward pass eqs. 31–48, forward pass
 //!   and line search eqs. 49–51) with Levenberg–Marquardt regularisation and,
 //!   where no regularisation helps, a fall back to the cost's convex
@@ -92,7 +92,7 @@ pub use constraint::{
 };
 pub use cost::{
     ControlEffort, Cost, ExpObstacle, Objective, ShapeObstacle, StageCost, StageExpansion,
-    StateTracking, TerminalCost, TerminalExpansion, TerminalTracking, ViaPoint,
+    StateTracking, TerminalCost, TerminalExpansion, TerminalTracking, ViaPath,
 };
 pub use dynamics::{ContinuousDynamics, Curvature, DiscreteDynamics, Euler, Rk4, Sparsity};
 pub use model::{Model, Parameter, Quantity};

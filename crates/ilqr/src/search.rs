@@ -11,8 +11,8 @@
 //!
 //! A shooting method optimises controls, so a start must be controls. The
 //! caller makes them with a short guiding solve: the problem's own cost
-//! plus a [`ViaPoint`](crate::ViaPoint) term at the detour's knot, from the
-//! plain initial guess. Its controls then start the real solve, which
+//! plus a [`ViaPath`](crate::ViaPath) term pulling every knot along the
+//! route through the detour's via-point, from the plain initial guess. Its controls then start the real solve, which
 //! settles into the local optimum on that side. (ALTRO's alternative, an
 //! infeasible start with slack controls on the states, needs a model with
 //! `NU + NX` controls; the guiding solve needs nothing from the model.)
@@ -62,6 +62,8 @@ pub struct Detour {
     pub via: Vector2<f64>,
     /// The unit vector from the obstacle's centre towards the via-point.
     pub direction: Vector2<f64>,
+    /// The unit vector along the straight path, towards the goal.
+    pub along: Vector2<f64>,
     /// The stage at which the guiding solve pulls the position to `via`
     /// (`1 ≤ knot < N`).
     pub knot: usize,
@@ -116,6 +118,7 @@ pub fn detours(
                 center: c,
                 via: c + n * out_by,
                 direction: n,
+                along,
                 knot,
                 gap,
             });
@@ -126,22 +129,57 @@ pub fn detours(
 
 impl Detour {
     /// Whether `path` (positions, m) already passes the obstacle on this
-    /// detour's side: at the path's closest approach to the obstacle's
-    /// centre it lies beyond the centre along [`Detour::direction`]. A path
-    /// through the centre, or one with a position that is not finite,
-    /// passes on neither side.
+    /// detour's side: where it crosses the line through the obstacle's
+    /// centre across the straight path, it lies beyond the centre along
+    /// [`Detour::direction`]. Of several crossings (a path that loops), the
+    /// one nearest the centre counts; a path that never crosses is judged
+    /// where it comes nearest the centre. A path through the centre, or one
+    /// with a position that is not finite, passes on neither side.
+    ///
+    /// Nearness alone misjudges a start beside the obstacle: the first
+    /// position is then the nearest, on whichever side the start is,
+    /// wherever the path goes after.
     pub fn is_taken_by(&self, path: impl IntoIterator<Item = Vector2<f64>>) -> bool {
-        let mut nearest: Option<(f64, Vector2<f64>)> = None;
+        self.side_of(path) == Some(self.side)
+    }
+
+    /// The side of the straight path on which `path` passes the obstacle,
+    /// as [`Detour::is_taken_by`] judges it; `None` through the centre, or
+    /// with a position that is not finite.
+    pub fn side_of(&self, path: impl IntoIterator<Item = Vector2<f64>>) -> Option<Side> {
+        let mut crossing: Option<f64> = None;
+        let mut nearest: Option<(f64, f64)> = None;
+        let mut previous: Option<(f64, f64)> = None;
         for p in path {
-            let d = (p - self.center).norm_squared();
-            if !d.is_finite() {
-                return false;
+            let d = p - self.center;
+            if !(d.x.is_finite() && d.y.is_finite()) {
+                return None;
             }
-            if nearest.is_none_or(|(best, _)| d < best) {
-                nearest = Some((d, p));
+            // Along the straight path, and towards this detour's side.
+            let (s, l) = (d.dot(&self.along), d.dot(&self.direction));
+            if let Some((s0, l0)) = previous
+                && (s0 <= 0.0) != (s <= 0.0)
+            {
+                let lateral = l0 + (l - l0) * (s0 / (s0 - s));
+                if crossing.is_none_or(|c| lateral.abs() < c.abs()) {
+                    crossing = Some(lateral);
+                }
+            }
+            previous = Some((s, l));
+            let r = d.norm_squared();
+            if nearest.is_none_or(|(best, _)| r < best) {
+                nearest = Some((r, l));
             }
         }
-        nearest.is_some_and(|(_, p)| (p - self.center).dot(&self.direction) > 0.0)
+        let other = match self.side {
+            Side::Left => Side::Right,
+            Side::Right => Side::Left,
+        };
+        match crossing.or(nearest.map(|(_, l)| l)) {
+            Some(l) if l > 0.0 => Some(self.side),
+            Some(l) if l < 0.0 => Some(other),
+            _ => None,
+        }
     }
 }
 
@@ -292,6 +330,30 @@ mod tests {
         let broken = [Vector2::new(5.0, 1.0), Vector2::new(f64::NAN, 0.0)];
         assert!(!left.is_taken_by(broken));
         assert!(!left.is_taken_by([]));
+    }
+
+    /// A start beside the obstacle is the path's nearest point, but not
+    /// where it passes: case 4b of issue 40, a start 2.1 m south-south-east
+    /// of a soft obstacle and a path that swings 3 m west of it.
+    #[test]
+    fn a_start_beside_the_obstacle_does_not_decide_the_side() {
+        let o = circle(0.461, 2.433, 0.0, 3.5);
+        // (0.164, 0.318) in the issue: 0.3183 reads to clippy as 1/π.
+        let (start, goal) = (Vector2::new(0.164, 0.32), Vector2::new(1.954, 6.492));
+        let d = detours(start, goal, 100, &[o]);
+        let (west, east) = (&d[0], &d[1]);
+        assert!(west.direction.x < 0.0 && east.direction.x > 0.0);
+        // Round the west of the obstacle: out to x = -2.7 at its height.
+        let path: Vec<_> = (0..=20)
+            .map(|k| {
+                let t = f64::from(k) / 20.0;
+                let bulge = -3.0 * (std::f64::consts::PI * t).sin();
+                start + (goal - start) * t + Vector2::new(bulge, 0.0)
+            })
+            .collect();
+        assert!((path[0] - o.region.center).norm() < (path[10] - o.region.center).norm());
+        assert!(west.is_taken_by(path.iter().copied()));
+        assert!(!east.is_taken_by(path.iter().copied()));
     }
 
     #[test]

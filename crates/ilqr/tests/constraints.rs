@@ -9,7 +9,7 @@ use std::sync::atomic::AtomicBool;
 use ilqr::{
     Clearance, Constraint, Constraints, ControlBounds, DiscreteDynamics, GoalTolerance, Knot,
     Options, Rectangle, Region, Shape, ShapeObstacle, Solver, StageCost, StageExpansion,
-    StateBounds, Status, ViaPoint,
+    StateBounds, Status, ViaPath,
 };
 use nalgebra::{SVector, Vector2};
 
@@ -351,39 +351,46 @@ fn the_seed_with_thrust_bounds_keeps_them_exactly() {
     assert!(solver.controls().iter().any(|u| u.min() == 0.0));
 }
 
-/// The guiding solve's via-point: `w‖p − point‖²` at its knot, its
-/// gradient and Hessian those of finite differences there, and nothing at
-/// any other stage.
+/// The guiding solve's route: `w‖p_k − r_k‖²` at every stage, `r_k` on the
+/// two legs through the via-point at constant speed; its gradient and
+/// Hessian those of finite differences.
 #[test]
-fn via_point_term_matches_finite_differences_at_its_knot_only() {
-    let term = ViaPoint {
-        point: Vector2::new(1.5, -2.0),
-        knot: 7,
+fn via_path_term_matches_its_route_and_finite_differences() {
+    let term = ViaPath {
+        from: Vector2::new(0.0, 0.0),
+        via: Vector2::new(4.0, 2.0),
+        to: Vector2::new(6.0, 10.0),
+        knot: 4,
+        horizon: 8,
         weight: 3.0,
         position: (1, 3),
     };
+    assert_eq!(term.point(0), Vector2::new(0.0, 0.0));
+    assert_eq!(term.point(2), Vector2::new(2.0, 1.0));
+    assert_eq!(term.point(4), Vector2::new(4.0, 2.0));
+    assert_eq!(term.point(6), Vector2::new(5.0, 6.0));
+    assert_eq!(term.point(8), Vector2::new(6.0, 10.0));
     let x = SVector::<f64, 6>::from([9.0, 0.4, 5.0, 1.1, -2.0, 3.0]);
     let u = SVector::<f64, 2>::zeros();
     let v = |k: usize, x: &SVector<f64, 6>| StageCost::<6, 2>::value(&term, k, x, &u);
-    // Position (x[1], x[3]) = (0.4, 1.1): 3·(1.1² + 3.1²).
-    assert!((v(7, &x) - 3.0 * (1.1f64.powi(2) + 3.1f64.powi(2))).abs() < 1e-12);
-    let mut e = StageExpansion::<6, 2>::zeros();
-    term.expand(7, &x, &u, &mut e);
-    let h = 1e-6;
-    for a in 0..6 {
-        let mut dx = SVector::<f64, 6>::zeros();
-        dx[a] = h;
-        let fd = (v(7, &(x + dx)) - v(7, &(x - dx))) / (2.0 * h);
-        assert!((fd - e.l_x[a]).abs() < 1e-5 * (1.0 + fd.abs()), "l_x[{a}]");
-    }
-    for (i, j) in [(1, 1), (3, 3)] {
-        assert_eq!(e.l_xx[(i, j)], 6.0);
-    }
-    assert_eq!(e.l_xx.iter().filter(|v| **v != 0.0).count(), 2);
-    for k in [0, 6, 8] {
-        assert_eq!(v(k, &x), 0.0);
+    // Position (x[1], x[3]) = (0.4, 1.1) against (2, 1) at stage 2.
+    assert!((v(2, &x) - 3.0 * (1.6f64.powi(2) + 0.1f64.powi(2))).abs() < 1e-12);
+    for k in [0, 3, 4, 7] {
         let mut e = StageExpansion::<6, 2>::zeros();
         term.expand(k, &x, &u, &mut e);
-        assert_eq!(e, StageExpansion::<6, 2>::zeros(), "stage {k}");
+        let h = 1e-6;
+        for a in 0..6 {
+            let mut dx = SVector::<f64, 6>::zeros();
+            dx[a] = h;
+            let fd = (v(k, &(x + dx)) - v(k, &(x - dx))) / (2.0 * h);
+            assert!(
+                (fd - e.l_x[a]).abs() < 1e-5 * (1.0 + fd.abs()),
+                "l_x[{a}] at {k}"
+            );
+        }
+        for (i, j) in [(1, 1), (3, 3)] {
+            assert_eq!(e.l_xx[(i, j)], 6.0);
+        }
+        assert_eq!(e.l_xx.iter().filter(|v| **v != 0.0).count(), 2);
     }
 }

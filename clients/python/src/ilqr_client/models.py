@@ -1205,8 +1205,10 @@ class StartReport:
     Attributes:
         label: Which way it went: ``"rest controls"`` (the model's rest:
             hover for the quadrotor), ``"initial_controls"`` or
-            ``"warm_start"`` for the plain start; for a detour, the compass
-            side of the obstacle it passes, e.g. ``"east of obstacle 0"``.
+            ``"warm_start"`` for the plain start, with ``", clearances
+            kept"`` for the plain guess solved keeping the clearances it
+            has (with hard obstacles); for a detour, the compass side of
+            the obstacle it was guided round, e.g. ``"east of obstacle 0"``.
         status: How its solve ended, one of :data:`SOLVE_STATUSES`.
         cost: Its final cost.
         iterations: Its solve's iterations.
@@ -1218,8 +1220,11 @@ class StartReport:
         side: A detour's side of the straight path, facing the goal:
             ``"left"`` or ``"right"``; ``None`` for the plain start.
         guide_iterations: A detour's guiding solve's iterations (the cost
-            plus a via-point beside the obstacle); ``None`` for the plain
-            start.
+            plus a pull along a route past the obstacle); ``None`` for the
+            plain start.
+        passes: A detour's answer's side of the straight path at its
+            obstacle, ``"left"`` or ``"right"``: not ``side`` when its solve
+            slid back round the other way; ``None`` for the plain start.
     """
 
     label: str
@@ -1232,6 +1237,7 @@ class StartReport:
     obstacle: Optional[int] = None
     side: Optional[str] = None
     guide_iterations: Optional[int] = None
+    passes: Optional[str] = None
 
     @classmethod
     def from_dict(cls, data: Mapping[str, Any], where: str = "/starts/-") -> "StartReport":
@@ -1255,6 +1261,7 @@ class StartReport:
             obstacle=optional("obstacle", _int),
             side=optional("side", _string),
             guide_iterations=optional("guide_iterations", _int),
+            passes=optional("passes", _string),
         )
 
     def to_dict(self) -> Dict[str, Any]:
