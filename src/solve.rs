@@ -50,9 +50,11 @@ use crate::schema;
 /// * `cancelled`: the client left, or the service was shutting down;
 /// * `no_progress`: no step could reduce the cost at any regularisation,
 ///   with the exact Hessian nor (with obstacles, or with `ddp`) the convex
-///   model tried after it;
-/// * `infeasible`: with hard constraints, their violation could not be
-///   brought under `solver.constraint_tolerance`.
+///   model tried after it; or, with hard constraints, the violation
+///   stalled just above `solver.constraint_tolerance`;
+/// * `infeasible`: with hard constraints, evidence that they cannot be
+///   met from here: the violation stalled well above the tolerance with
+///   every penalty at its largest.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Hash, Serialize, Deserialize, ToSchema)]
 #[serde(rename_all = "snake_case")]
 pub enum SolveStatus {
@@ -72,14 +74,20 @@ pub enum SolveStatus {
     /// Regularisation passed its maximum: no step could reduce the cost,
     /// with the exact Hessian nor (with obstacles, or with `ddp`) with the convex model
     /// tried after it; or the exact Hessian could not move from a point
-    /// where the convex model stopped (see `convex_model_at_end`).
+    /// where the convex model stopped (see `convex_model_at_end`). With
+    /// hard constraints also: the violation stalled for three outer
+    /// iterations at the largest penalties, but within ten times
+    /// `solver.constraint_tolerance`: a stuck solver, not an infeasible
+    /// problem (`constraint_violation` says by how much).
     NoProgress,
-    /// With hard constraints: their violation could not be brought under
-    /// `solver.constraint_tolerance` (the penalty at its largest with the
-    /// violation no longer falling, or 30 outer iterations spent): the
-    /// constraints contradict each other or the dynamics, or the solver
-    /// found no feasible route from its start. The result is the least
-    /// violating trajectory found; `constraint_violation` says by how much.
+    /// With hard constraints, evidence that they cannot be met from this
+    /// start: the violation stalled above ten times
+    /// `solver.constraint_tolerance` for three outer iterations in a row
+    /// with every penalty at its largest (1e8). A goal inside a hard
+    /// obstacle, say, or bounds the dynamics cannot keep. Outer iterations
+    /// that run out with the violation still falling end
+    /// `max_iterations` instead. The result is the least violating
+    /// trajectory found; `constraint_violation` says by how much.
     Infeasible,
 }
 
@@ -199,7 +207,8 @@ pub struct SolveResult {
     /// start first, then (when `solver.multi_start` searches) the detours
     /// around the obstacles in the way. The result, its `trace` and its
     /// `gains` are those of the one marked `chosen`: the cheapest that
-    /// converged (see docs/solver.md, "Searching over routes").
+    /// meets the hard constraints (see docs/solver.md, "Searching over
+    /// routes").
     pub starts: Vec<StartReport>,
     /// Wall-clock time spent solving, in ms: every start's, which run side
     /// by side on idle workers (the sum of the starts' `solve_time_ms` is
@@ -1101,34 +1110,27 @@ impl Inbox {
     }
 }
 
-/// The start to keep: the cheapest that converged; failing that the
-/// cheapest that meets the constraints; failing that the least violating.
-/// Ties and near-ties ([`NEAR_TIE`]) go to the earlier start, so the
-/// choice is the same whatever order the starts ended in.
+/// The start to keep: the cheapest that meets the hard constraints,
+/// converged or not (one stopped short of its optimum would only have got
+/// cheaper: its route is the better one); failing that the least
+/// violating. Ties and near-ties ([`NEAR_TIE`]) go to the earlier start,
+/// so the choice is the same whatever order the starts ended in.
 fn choose(attempts: &[&Attempt], constraint_tolerance: f64) -> usize {
-    let class = |r: &SolveResult| {
-        if r.status == SolveStatus::Converged {
-            0
-        } else if r.constraint_violation <= constraint_tolerance {
-            1
-        } else {
-            2
-        }
-    };
+    let meets = |r: &SolveResult| r.constraint_violation <= constraint_tolerance;
     let key = |r: &SolveResult| {
-        if class(r) == 2 {
-            r.constraint_violation
-        } else {
+        if meets(r) {
             r.cost
+        } else {
+            r.constraint_violation
         }
     };
     let mut best = 0;
     for (i, a) in attempts.iter().enumerate().skip(1) {
         let (a, b) = (&a.result, &attempts[best].result);
-        let better = match class(a).cmp(&class(b)) {
-            std::cmp::Ordering::Less => true,
-            std::cmp::Ordering::Greater => false,
-            std::cmp::Ordering::Equal => key(a) < key(b) - NEAR_TIE * key(b).abs(),
+        let better = match (meets(a), meets(b)) {
+            (true, false) => true,
+            (false, true) => false,
+            _ => key(a) < key(b) - NEAR_TIE * key(b).abs(),
         };
         if better {
             best = i;
@@ -1242,38 +1244,96 @@ where
         penalty_feasible: start.penalty_feasible(),
         ..Options::default()
     };
-    let cost = objective::<NX, NU>(spec, M::POSITION)?;
-    let guide = match start {
-        Start::Plain | Start::KeptClear => None,
-        Start::Detour(d) => Some(objective::<NX, NU>(spec, M::POSITION)?.with_stage(ViaPath {
-            from: planar(&spec.initial_state, M::POSITION),
-            via: d.via,
-            to: planar(&spec.goal_state, M::POSITION),
-            knot: d.knot,
-            horizon: spec.horizon,
-            weight: guide_weight(spec, M::POSITION),
-            position: M::POSITION,
-        })),
-    };
     let constraints = hard_constraints::<NX, NU>(spec, M::POSITION)?;
     let x0 = vector::<NX>(&spec.initial_state, "/initial_state")?;
     let (dt, horizon) = (spec.dt, spec.horizon);
-    let built = Built {
-        cost,
-        guide,
-        x0,
-        plain,
-        terms: terms.clone(),
+    let run = |guide: Guide, progress: &mut dyn FnMut(&TraceEntry)| {
+        let model = M::from_parameters(&values);
+        let guide = match start {
+            Start::Detour(d) => Some(
+                objective::<NX, NU>(spec, M::POSITION)?.with_stage(guide.path(
+                    spec,
+                    &d,
+                    M::POSITION,
+                )),
+            ),
+            Start::Plain | Start::KeptClear => None,
+        };
+        let built = Built {
+            cost: objective::<NX, NU>(spec, M::POSITION)?,
+            guide,
+            x0,
+            plain: plain.clone(),
+            terms: terms.clone(),
+        };
+        let run = (&options, &constraints, cancel, progress);
+        with_solver(horizon, |solver| match spec.integrator {
+            Integrator::Euler => {
+                attempt_on::<M, _, NX, NU>(solver, spec, Euler { model, dt }, built, run)
+            }
+            Integrator::Rk4 => {
+                attempt_on::<M, _, NX, NU>(solver, spec, Rk4 { model, dt }, built, run)
+            }
+        })
     };
-    let run = (&options, &constraints, cancel, progress);
-    let mut attempt = with_solver(horizon, |solver| match spec.integrator {
-        Integrator::Euler => {
-            attempt_on::<M, _, NX, NU>(solver, spec, Euler { model, dt }, built, run)
+    let mut attempt = run(Guide::Route, progress)?;
+    // A detour that slid back round the other side did not search its
+    // side: it is guided once more, differently, while time is left.
+    if let Start::Detour(d) = start {
+        let passes =
+            |a: &Attempt| d.is_taken_by(a.result.states.iter().map(|x| planar(x, M::POSITION)));
+        let took = started.elapsed();
+        let time_left = terms.deadline.is_none_or(|end| Instant::now() + took < end);
+        if !passes(&attempt) && time_left && !cancel.load(Ordering::Relaxed) {
+            let again = run(Guide::Point, progress)?;
+            let guided =
+                attempt.guide_iterations.unwrap_or(0) + again.guide_iterations.unwrap_or(0);
+            // The better of the two answers, as among starts: the first
+            // when they tie.
+            if choose(&[&attempt, &again], spec.solver.constraint_tolerance) == 1 {
+                attempt = again;
+            }
+            attempt.guide_iterations = Some(guided);
         }
-        Integrator::Rk4 => attempt_on::<M, _, NX, NU>(solver, spec, Rk4 { model, dt }, built, run),
-    })?;
+    }
     attempt.result.solve_time_ms = millis(started.elapsed());
     Ok(attempt)
+}
+
+/// How a guiding solve pulls the path past a detour's obstacle.
+#[derive(Debug, Clone, Copy)]
+enum Guide {
+    /// Every knot along the route start, via-point, goal
+    /// ([`guide_weight`] per knot): the path follows the route whatever
+    /// the number of knots.
+    Route,
+    /// The via-point's knot alone, ten times the terminal position weight:
+    /// the path is free elsewhere, to go round the other obstacles as the
+    /// cost prefers where the route's straight legs would cross them.
+    Point,
+}
+
+impl Guide {
+    fn path(self, spec: &ProblemSpec, d: &Detour, position: (usize, usize)) -> ViaPath {
+        let (reach, weight) = match self {
+            Self::Route => (spec.horizon, guide_weight(spec, position)),
+            Self::Point => {
+                let w = &spec.weights.terminal;
+                let at = |i: usize| w.get(i).copied().unwrap_or(0.0);
+                (0, 10.0 * at(position.0).max(at(position.1)).max(1.0))
+            }
+        };
+        ViaPath {
+            from: planar(&spec.initial_state, position),
+            via: d.via,
+            to: planar(&spec.goal_state, position),
+            knot: d.knot,
+            horizon: spec.horizon,
+            reach,
+            weight,
+            position,
+        }
+    }
 }
 
 /// A start's problem in the solver's types.
@@ -2239,12 +2299,11 @@ mod tests {
         );
     }
 
-    /// The cheapest converged start wins; a cheaper one that did not
-    /// converge does not; a near-tie goes to the earlier start; without a
-    /// converged one, the cheapest that meets the constraints, then the
-    /// least violating.
+    /// The cheapest start that meets the constraints wins, converged or
+    /// not; a near-tie goes to the earlier start; without one that meets
+    /// them, the least violating.
     #[test]
-    fn the_chosen_start_is_the_cheapest_converged_earliest_on_ties() {
+    fn the_chosen_start_is_the_cheapest_feasible_earliest_on_ties() {
         let base = solve(&ProblemSpec::default(), None, &AtomicBool::new(false)).unwrap();
         let at = |status: SolveStatus, cost: f64, violation: f64| Attempt {
             result: SolveResult {
@@ -2263,7 +2322,11 @@ mod tests {
         );
         assert_eq!(
             pick(&[at(Converged, 10.0, 0.0), at(MaxIterations, 1.0, 0.0)]),
-            0
+            1
+        );
+        assert_eq!(
+            pick(&[at(MaxIterations, 1.0, 0.1), at(Converged, 10.0, 0.0)]),
+            1
         );
         let tie = 10.0 * (1.0 - 0.5 * NEAR_TIE);
         assert_eq!(

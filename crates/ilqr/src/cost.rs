@@ -308,10 +308,10 @@ impl<const NX: usize> TerminalCost<NX> for TerminalTracking<NX> {
     }
 }
 
-/// `weight · ‖p_k − r_k‖²` at every stage: pulls the position along a
-/// route through a via-point, `r_k` moving at constant speed from `from`
-/// to `via` over stages `0..=knot`, then from `via` to `to` over
-/// `knot..=horizon`. Not part of any problem's cost: a search over routes
+/// `weight · ‖p_k − r_k‖²` at every stage within `reach` of `knot`: pulls
+/// the position along a route through a via-point, `r_k` moving at
+/// constant speed from `from` to `via` over stages `0..=knot`, then from
+/// `via` to `to` over `knot..=horizon`. Not part of any problem's cost: a search over routes
 /// ([`crate::search`]) adds it to a short guiding solve that bends the
 /// initial guess to one side of an obstacle. Pulling every stage, not the
 /// via-point's alone, keeps the guided path on the route before and after
@@ -330,6 +330,9 @@ pub struct ViaPath {
     pub knot: usize,
     /// The number of stages `N`.
     pub horizon: usize,
+    /// How many stages either side of `knot` are pulled: `horizon` for
+    /// the whole route, 0 for the via-point alone.
+    pub reach: usize,
     /// Weight per stage (cost units per m²).
     pub weight: f64,
     /// Indices of the position components in the state.
@@ -350,11 +353,19 @@ impl ViaPath {
     fn offset<const NX: usize>(&self, k: usize, x: &SVector<f64, NX>) -> Vector2<f64> {
         Vector2::new(x[self.position.0], x[self.position.1]) - self.point(k)
     }
+
+    fn pulls(&self, k: usize) -> bool {
+        k.abs_diff(self.knot) <= self.reach
+    }
 }
 
 impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPath {
     fn value(&self, k: usize, x: &SVector<f64, NX>, _u: &SVector<f64, NU>) -> f64 {
-        self.weight * self.offset(k, x).norm_squared()
+        if self.pulls(k) {
+            self.weight * self.offset(k, x).norm_squared()
+        } else {
+            0.0
+        }
     }
 
     fn expand(
@@ -364,6 +375,9 @@ impl<const NX: usize, const NU: usize> StageCost<NX, NU> for ViaPath {
         _u: &SVector<f64, NU>,
         e: &mut StageExpansion<NX, NU>,
     ) {
+        if !self.pulls(k) {
+            return;
+        }
         let grad = self.offset(k, x) * (2.0 * self.weight);
         let hess = Matrix2::identity() * (2.0 * self.weight);
         add_in_plane(self.position, &grad, &hess, e);

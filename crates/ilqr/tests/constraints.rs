@@ -362,6 +362,7 @@ fn via_path_term_matches_its_route_and_finite_differences() {
         to: Vector2::new(6.0, 10.0),
         knot: 4,
         horizon: 8,
+        reach: 8,
         weight: 3.0,
         position: (1, 3),
     };
@@ -392,5 +393,13 @@ fn via_path_term_matches_its_route_and_finite_differences() {
             assert_eq!(e.l_xx[(i, j)], 6.0);
         }
         assert_eq!(e.l_xx.iter().filter(|v| **v != 0.0).count(), 2);
+    }
+    // Within `reach` of the via-point's stage only.
+    let near = ViaPath { reach: 1, ..term };
+    for (k, pulled) in [(2, false), (3, true), (4, true), (5, true), (6, false)] {
+        let mut e = StageExpansion::<6, 2>::zeros();
+        near.expand(k, &x, &u, &mut e);
+        assert_eq!(e != StageExpansion::<6, 2>::zeros(), pulled, "stage {k}");
+        assert_eq!(StageCost::<6, 2>::value(&near, k, &x, &u) > 0.0, pulled);
     }
 }
