@@ -552,7 +552,8 @@ pub fn solve_observed(
 /// `progress` on this thread, when it next reports a row of its own or
 /// once its own starts are done; those of a start begun before the plain
 /// start decided which are kept, only after that decision, and only if
-/// it is kept.
+/// it is kept. A detour's rows come when it ends, those of the try it
+/// keeps (it is guided a second time if it slid back).
 pub fn solve_shared(
     helpers: Helpers<'_>,
     budget: Budget,
@@ -816,9 +817,9 @@ const SPECULATE_AFTER: Duration = Duration::from_millis(5);
 /// and the waste is idle threads' time while the plain start ran.
 ///
 /// A start begins only while there is time for it ([`Shared::take`]):
-/// before the deadline, and after the decision with at least as long left
-/// as the plain start took. Once one is dropped for time, every later one
-/// is, so the starts run are the first kept ones, in order.
+/// with at least as long left as the plain start took, or before it has
+/// ended, twice what it has taken so far. Once one is dropped for time, every
+/// later one is, so the starts run are the first kept ones, in order.
 ///
 /// `cancel` (the request's) reaches the starts on other threads through
 /// their stop flags, set by this thread whenever it sees `cancel`: while
@@ -840,6 +841,7 @@ fn search(
         decided: OnceLock::new(),
         stop: (0..n).map(|_| AtomicBool::new(false)).collect(),
         deadline,
+        began: Instant::now(),
         start_by: OnceLock::new(),
         late: AtomicBool::new(false),
     });
@@ -987,8 +989,9 @@ struct Shared {
     decided: OnceLock<Vec<bool>>,
     /// Each start's stop flag, polled like a cancellation flag.
     stop: Vec<AtomicBool>,
-    /// The solve's deadline.
+    /// The solve's deadline, and when the search began.
     deadline: Option<Instant>,
+    began: Instant,
     /// Once the plain start has ended: the latest time a detour may begin.
     start_by: OnceLock<Option<Instant>>,
     /// A start was found too late to begin: so is every later one.
@@ -1002,11 +1005,18 @@ impl Shared {
         }
     }
 
-    /// Whether it is too late to begin a start: the deadline has passed,
-    /// or (once the plain start has ended) the time it took no longer fits.
+    /// Whether it is too late to begin a start: less time is left than the
+    /// plain start took, or, before it has ended, than twice what it has
+    /// taken so far (a detour begun beside it needs as long at least, and
+    /// the plain start is not done).
     fn too_late(&self) -> bool {
-        let by = self.start_by.get().copied().unwrap_or(self.deadline);
-        by.is_some_and(|by| Instant::now() >= by)
+        let now = Instant::now();
+        match self.start_by.get() {
+            Some(by) => by.is_some_and(|by| now >= by),
+            None => self
+                .deadline
+                .is_some_and(|end| end.saturating_duration_since(now) <= 2 * (now - self.began)),
+        }
     }
 
     /// The next start, and whether to run it: not when it is too late, or
@@ -1276,25 +1286,34 @@ where
             }
         })
     };
-    let mut attempt = run(Guide::Route, progress)?;
+    let Start::Detour(d) = start else {
+        let mut attempt = run(Guide::Route, progress)?;
+        attempt.result.solve_time_ms = millis(started.elapsed());
+        return Ok(attempt);
+    };
     // A detour that slid back round the other side did not search its
-    // side: it is guided once more, differently, while time is left.
-    if let Start::Detour(d) = start {
-        let passes =
-            |a: &Attempt| d.is_taken_by(a.result.states.iter().map(|x| planar(x, M::POSITION)));
-        let took = started.elapsed();
-        let time_left = terms.deadline.is_none_or(|end| Instant::now() + took < end);
-        if !passes(&attempt) && time_left && !cancel.load(Ordering::Relaxed) {
-            let again = run(Guide::Point, progress)?;
-            let guided =
-                attempt.guide_iterations.unwrap_or(0) + again.guide_iterations.unwrap_or(0);
-            // The better of the two answers, as among starts: the first
-            // when they tie.
-            if choose(&[&attempt, &again], spec.solver.constraint_tolerance) == 1 {
-                attempt = again;
-            }
-            attempt.guide_iterations = Some(guided);
+    // side: it is guided once more, differently, while time is left. Its
+    // rows are held until it is known which try it keeps, so that a
+    // stream shows that try's alone, numbered from 1, as its trace.
+    let mut rows = Vec::new();
+    let mut attempt = run(Guide::Route, &mut |row| rows.push(row.clone()))?;
+    let passes =
+        |a: &Attempt| d.is_taken_by(a.result.states.iter().map(|x| planar(x, M::POSITION)));
+    let took = started.elapsed();
+    let time_left = terms.deadline.is_none_or(|end| Instant::now() + took < end);
+    if !passes(&attempt) && time_left && !cancel.load(Ordering::Relaxed) {
+        let mut again_rows = Vec::new();
+        let again = run(Guide::Point, &mut |row| again_rows.push(row.clone()))?;
+        let guided = attempt.guide_iterations.unwrap_or(0) + again.guide_iterations.unwrap_or(0);
+        // The better of the two answers, as among starts: the first when
+        // they tie.
+        if choose(&[&attempt, &again], spec.solver.constraint_tolerance) == 1 {
+            (attempt, rows) = (again, again_rows);
         }
+        attempt.guide_iterations = Some(guided);
+    }
+    for row in &rows {
+        progress(row);
     }
     attempt.result.solve_time_ms = millis(started.elapsed());
     Ok(attempt)

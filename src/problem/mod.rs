@@ -418,9 +418,11 @@ pub struct SolverSpec {
     /// of it. It is checked every iteration and every 128 knots inside the
     /// linearisation, backward pass and rollouts, so a solve overruns it by
     /// at most about 256 knots of work; the initial rollout always completes,
-    /// since without it there is no trajectory to return. Serialising and
-    /// compressing the answer come after the budget (the `Server-Timing`
-    /// header reports them). At most the service's maximum (60000 unless
+    /// since without it there is no trajectory to return. The solve stops
+    /// early by the time the result's report and the answer's encoding
+    /// will take, and a search runs only the starts that still fit, so the
+    /// encoded answer is due within the budget plus 5% (at least 5 ms). At
+    /// most the service's maximum (60000 unless
     /// configured). Unset: the service's default (10000 unless configured;
     /// the CLI has none).
     #[serde(deserialize_with = "wire::de_millis")]

@@ -674,7 +674,7 @@ fn split_params(media_type: &str) -> impl Iterator<Item = &str> {
     request_body(content = ProblemDoc, content_type = "application/json"),
     responses(
         (status = 200, description = "Solved (see `status` for how the solve ended)", body = SolveResult,
-            headers(("Server-Timing" = String, description = "Milliseconds spent queued, solving, and serialising plus compressing the answer (not covered by the time budget), e.g. `queue;dur=0.02, solve;dur=0.35, encode;dur=0.61`"))),
+            headers(("Server-Timing" = String, description = "Milliseconds spent queued, solving, and serialising plus compressing the answer (all three within the time budget), e.g. `queue;dur=0.02, solve;dur=0.35, encode;dur=0.61`"))),
         (status = 400, description = "The body is not JSON, or could not be read (broken chunked encoding, a Transfer-Encoding that applies `chunked` more than once, connection lost)", body = Problem, content_type = "application/problem+json"),
         (status = 408, description = "The body did not arrive within the read timeout", body = Problem, content_type = "application/problem+json"),
         (status = 405, description = "A method other than POST", body = Problem, content_type = "application/problem+json"),

@@ -254,7 +254,7 @@ pub struct Solved<T> {
     pub queue_ms: f64,
     /// Time spent solving, in ms (the result's `solve_time_ms`).
     pub solve_ms: f64,
-    /// Time the encoder took, in ms (not covered by the budget).
+    /// Time the encoder took, in ms (kept back from the budget).
     pub encode_ms: f64,
 }
 
